@@ -1,0 +1,137 @@
+"""Headless command line: ``python -m addon COMMAND ...`` from the repository root.
+
+Exit codes: 0 success, 2 bad input (one line on stderr naming the file and the fault).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+
+
+class InputError(Exception):
+    """Bad input from the user: reported as one line, exit code 2."""
+
+
+def _positive_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1: {text}")
+    return v
+
+
+def _elevation(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= v < 90.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 90) degrees: {text}")
+    return v
+
+
+def write_json_atomic(data, path):
+    """Write JSON through a temporary file in the same folder; no NaN can get in."""
+    path = os.path.abspath(path)
+    folder = os.path.dirname(path)
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=folder)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(data, fh, allow_nan=False)
+            fh.write("\n")
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def _progress(label):
+    if not sys.stderr.isatty():
+        return None
+
+    def report(done, total):
+        width = 30
+        fill = int(width * done / max(total, 1))
+        sys.stderr.write(f"\r{label} [{'#' * fill}{'.' * (width - fill)}] {done}/{total}")
+        if done >= total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return report
+
+
+def cmd_profiles(args):
+    from .core.integrate import default_views
+    from .core.merl import read_merl
+    from .core.profiles import compute_profiles
+
+    table = read_merl(args.file)
+    views = default_views(args.elevations, args.max_elevation)
+    prof = compute_profiles(table, views, max_order=args.max_order, split=not args.no_split,
+                            interp=args.interp, progress=_progress("building slice rules (once)"))
+    write_json_atomic(prof.to_json(), args.out)
+    print(f"wrote {args.out}")
+    if args.plot:
+        from .plots import plot_profiles
+
+        plot_profiles(prof, args.plot)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def cmd_bench(args):
+    from . import bench
+
+    return bench.main(args)
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="python -m addon",
+                                description="BRDF Moments: moment profiles of measured (MERL) BRDFs.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    sp = sub.add_parser("profiles", help="moment profiles of one MERL file, as JSON")
+    sp.add_argument("file", help="MERL .binary file")
+    sp.add_argument("--out", required=True, help="output JSON path")
+    sp.add_argument("--elevations", type=_positive_int, default=90, help="number of view elevations (90)")
+    sp.add_argument("--max-elevation", type=_elevation, default=89.0, help="largest elevation in degrees (89)")
+    sp.add_argument("--max-order", type=int, choices=range(5), default=4, help="highest moment order (4)")
+    sp.add_argument("--no-split", action="store_true", help="do not remove the diffuse floor kd")
+    sp.add_argument("--interp", choices=("nearest", "trilinear"), default="nearest")
+    sp.add_argument("--plot", help="also write a PNG of the profiles")
+    sp.set_defaults(func=cmd_profiles)
+
+    sb = sub.add_parser("bench", help="benchmark tables (run time against error)")
+    sb.add_argument("--quick", action="store_true", help="fewer repetitions and views")
+    sb.add_argument("--only", nargs="*", help="sections to run (profiles, memory)")
+    sb.set_defaults(func=cmd_bench)
+    return p
+
+
+def main(argv=None):
+    from .core.merl import MerlError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except MerlError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+    except (OSError, ValueError) as exc:
+        name = getattr(exc, "filename", None)
+        msg = f"{name}: {exc.strerror}" if name and getattr(exc, "strerror", None) else str(exc)
+        print(f"error: {msg}", file=sys.stderr)
+    return 2

@@ -1,0 +1,215 @@
+"""MERL isotropic BRDF tables: read, validate, write, look up.
+
+Layout (SPEC §2): three little-endian int32 (90, 90, 180), then 3*90*90*180 float64,
+channel-major, cell index ``iphi_d + 180*(itheta_d + 90*itheta_h)``. Stored values are
+multiplied on read by per-channel scales. Negative stored values mark missing cells.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import HALF_PI, half_diff_from_directions
+
+RES_TH, RES_TD, RES_PD = 90, 90, 180
+N_CELLS = RES_TH * RES_TD * RES_PD
+SHAPE = (RES_TH, RES_TD, RES_PD)
+CHANNEL_SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
+HEADER_BYTES = 12
+FILE_BYTES = HEADER_BYTES + 3 * N_CELLS * 8
+
+
+class MerlError(ValueError):
+    """A MERL file that cannot be used; the message names the file and the fault."""
+
+    def __init__(self, path, fault):
+        self.path = os.fspath(path) if path is not None else "<memory>"
+        self.fault = fault
+        super().__init__(f"{self.path}: {fault}")
+
+
+@dataclass
+class MerlTable:
+    """A MERL table in reflectance units.
+
+    ``rho`` is (3, N_CELLS) float64 with missing cells set to 0; ``valid`` is the
+    (3, N_CELLS) mask of measured cells. Keeping the mask separate means a missing cell can
+    never leak into a sum as a negative number.
+    """
+
+    rho: np.ndarray
+    valid: np.ndarray
+    path: str | None = None
+
+    def __post_init__(self):
+        if self.rho.shape != (3, N_CELLS) or self.valid.shape != (3, N_CELLS):
+            raise ValueError("MerlTable needs (3, %d) arrays" % N_CELLS)
+
+    @property
+    def name(self) -> str:
+        if not self.path:
+            return "material"
+        base = os.path.basename(self.path)
+        return base[: -len(".binary")] if base.endswith(".binary") else os.path.splitext(base)[0]
+
+    def copy(self) -> "MerlTable":
+        return MerlTable(self.rho.copy(), self.valid.copy(), self.path)
+
+
+def read_merl(path) -> MerlTable:
+    """Read and validate a MERL file. Raises MerlError naming the file and the fault."""
+    path = os.fspath(path)
+    try:
+        size = os.path.getsize(path)
+        with open(path, "rb") as fh:
+            raw = fh.read(FILE_BYTES + 1)
+    except OSError as exc:
+        raise MerlError(path, f"cannot read file ({exc.strerror or exc})") from None
+    if size < HEADER_BYTES:
+        raise MerlError(path, f"file too short for a MERL header ({size} bytes, need {FILE_BYTES})")
+    dims = tuple(int(v) for v in np.frombuffer(raw[:HEADER_BYTES], dtype="<i4"))
+    if dims != SHAPE:
+        raise MerlError(path, f"wrong header {dims}, expected {SHAPE} (not a MERL isotropic BRDF?)")
+    if size != FILE_BYTES:
+        kind = "truncated" if size < FILE_BYTES else "oversized"
+        raise MerlError(path, f"{kind}: {size} bytes, a MERL file has exactly {FILE_BYTES}")
+    stored = np.frombuffer(raw[HEADER_BYTES:], dtype="<f8").reshape(3, N_CELLS)
+    return table_from_stored(stored, path)
+
+
+def table_from_stored(stored: np.ndarray, path=None) -> MerlTable:
+    """Validate raw stored values (3, N_CELLS) and convert them to reflectance."""
+    finite = np.isfinite(stored)
+    if not finite.all():
+        bad = np.argwhere(~finite)[0]
+        kind = "NaN" if np.isnan(stored[tuple(bad)]) else "inf"
+        count = int((~finite).sum())
+        raise MerlError(path, f"{count} non-finite value(s) ({kind} first at channel {bad[0]}, cell {bad[1]})")
+    valid = stored >= 0.0
+    rho = np.where(valid, stored, 0.0) * CHANNEL_SCALES[:, None]
+    if not np.isfinite(rho).all():
+        raise MerlError(path, "values overflow when scaled to reflectance")
+    return MerlTable(rho, valid, path)
+
+
+def write_merl(table: MerlTable, path, *, source=None) -> None:
+    """Write a MERL file atomically (temp file in the same folder, then rename).
+
+    Refuses to overwrite ``source`` (the file the table was read from), so an edit can
+    never clobber its input.
+    """
+    path = os.path.abspath(os.fspath(path))
+    for src in (source, table.path):
+        if src and os.path.exists(src) and os.path.exists(path) and os.path.samefile(src, path):
+            raise MerlError(path, "refusing to overwrite the input file; choose another output name")
+    if not (np.isfinite(table.rho).all()):
+        raise MerlError(path, "refusing to write non-finite values")
+    stored = np.where(table.valid, table.rho / CHANNEL_SCALES[:, None], -1.0)
+    folder = os.path.dirname(path) or "."
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".binary", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(np.asarray(SHAPE, dtype="<i4").tobytes())
+            fh.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600; an exported table should read like any file
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+# --- lookup -----------------------------------------------------------------------------
+
+def cell_indices(theta_h, theta_d, phi_d):
+    """Nearest cell (flat index) for Rusinkiewicz angles, as MERL's reference reader."""
+    theta_h = np.asarray(theta_h, dtype=float)
+    with np.errstate(invalid="ignore"):
+        th = np.floor(np.sqrt(np.maximum(theta_h, 0.0) / HALF_PI) * RES_TH)
+    ith = np.clip(np.where(theta_h <= 0.0, 0, th), 0, RES_TH - 1).astype(np.int64)
+    itd = np.clip(np.floor(np.asarray(theta_d) / HALF_PI * RES_TD), 0, RES_TD - 1).astype(np.int64)
+    pd = np.where(phi_d < 0.0, phi_d + np.pi, phi_d)
+    ipd = np.clip(np.floor(pd / np.pi * RES_PD), 0, RES_PD - 1).astype(np.int64)
+    return ipd + RES_PD * (itd + RES_TD * ith)
+
+
+def cell_centres():
+    """Rusinkiewicz angles at which each cell is sampled when tabulating (flat order)."""
+    ith, itd, ipd = np.meshgrid(np.arange(RES_TH), np.arange(RES_TD), np.arange(RES_PD), indexing="ij")
+    theta_h = ((ith + 0.5) / RES_TH) ** 2 * HALF_PI
+    theta_d = (itd + 0.5) / RES_TD * HALF_PI
+    phi_d = (ipd + 0.5) / RES_PD * np.pi
+    return theta_h.ravel(), theta_d.ravel(), phi_d.ravel()
+
+
+def _fractional_indices(theta_h, theta_d, phi_d):
+    # Continuous index coordinates whose integer points are cell centres.
+    fth = np.sqrt(np.clip(theta_h, 0.0, HALF_PI) / HALF_PI) * RES_TH - 0.5
+    ftd = np.clip(theta_d, 0.0, HALF_PI) / HALF_PI * RES_TD - 0.5
+    pd = np.where(phi_d < 0.0, phi_d + np.pi, phi_d)
+    fpd = pd / np.pi * RES_PD - 0.5
+    return fth, ftd, fpd
+
+
+def lookup_angles(table: MerlTable, theta_h, theta_d, phi_d, interp="nearest"):
+    """rho for Rusinkiewicz angles: returns (values (3, n), valid (3, n))."""
+    if interp == "nearest":
+        idx = cell_indices(theta_h, theta_d, phi_d)
+        return table.rho[:, idx], table.valid[:, idx]
+    if interp != "trilinear":
+        raise ValueError(f"unknown interpolation {interp!r}")
+    fth, ftd, fpd = _fractional_indices(np.asarray(theta_h, float), np.asarray(theta_d, float),
+                                        np.asarray(phi_d, float))
+    out = np.zeros((3,) + fth.shape)
+    wsum = np.zeros((3,) + fth.shape)
+    axes = []
+    for f, n, periodic in ((fth, RES_TH, False), (ftd, RES_TD, False), (fpd, RES_PD, True)):
+        i0 = np.floor(f)
+        t = f - i0
+        i0 = i0.astype(np.int64)
+        i1 = i0 + 1
+        if periodic:
+            # phi_d is periodic with period pi through the reciprocity fold.
+            i0, i1 = i0 % n, i1 % n
+        else:
+            i0, i1 = np.clip(i0, 0, n - 1), np.clip(i1, 0, n - 1)
+        axes.append(((i0, 1.0 - t), (i1, t)))
+    for a in axes[0]:
+        for b in axes[1]:
+            for c in axes[2]:
+                w = a[1] * b[1] * c[1]
+                idx = c[0] + RES_PD * (b[0] + RES_TD * a[0])
+                ok = table.valid[:, idx]
+                wv = np.where(ok, w, 0.0)
+                out += wv * table.rho[:, idx]
+                wsum += wv
+    valid = wsum > 1e-12
+    # Renormalise over measured neighbours so a missing cell never pulls values down.
+    return np.where(valid, out / np.where(valid, wsum, 1.0), 0.0), valid
+
+
+def lookup(table: MerlTable, wi, wo, interp="nearest"):
+    """rho(wi, wo) for arrays of unit vectors (..., 3): returns (values (3, ...), valid)."""
+    theta_h, theta_d, phi_d = half_diff_from_directions(wi, wo)
+    return lookup_angles(table, theta_h, theta_d, phi_d, interp)
+
+
+def tabulate(brdf, *, path=None) -> MerlTable:
+    """Tabulate an analytic BRDF ``brdf(wi, wo) -> (3, n)`` at the cell centres."""
+    from .geometry import directions_from_half_diff
+
+    theta_h, theta_d, phi_d = cell_centres()
+    wi, wo = directions_from_half_diff(theta_h, theta_d, phi_d)
+    rho = np.asarray(brdf(wi, wo), dtype=float).reshape(3, N_CELLS)
+    below = (wi[..., 2] <= 0.0) | (wo[..., 2] <= 0.0)
+    valid = np.broadcast_to(~below, (3, N_CELLS)).copy()
+    rho = np.where(valid, np.maximum(rho, 0.0), 0.0)
+    return MerlTable(rho, valid, path)

@@ -1,0 +1,43 @@
+"""Sample materials: analytic BRDFs tabulated into MERL files on demand.
+
+Tables are 35 MB each, so they are made when first asked for and cached in the
+git-ignored ``samples/.cache`` (or ``$BRDF_MOMENTS_SAMPLES``). Tabulation is deterministic:
+the same name always gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import os
+
+from .analytic import GGX, Lambertian, Phong
+
+CATALOG = {
+    "lambertian": Lambertian(albedo=(0.8, 0.8, 0.8)),
+    "phong": Phong(kd=(0.1, 0.1, 0.1), ks=(0.5, 0.5, 0.5), exponent=200.0),
+    "ggx_mirror": GGX(roughness=0.02, f0=(0.95, 0.95, 0.95), kd=(0.01, 0.01, 0.01)),
+    "ggx_glossy": GGX(roughness=0.1, f0=(0.04, 0.04, 0.04), kd=(0.15, 0.15, 0.15)),
+    "ggx_rough": GGX(roughness=0.5, f0=(0.04, 0.04, 0.04), kd=(0.2, 0.2, 0.2)),
+    "gold": GGX(roughness=0.08, f0=(1.0, 0.78, 0.34), kd=(0.0, 0.0, 0.0)),
+    "red_plastic": GGX(roughness=0.2, f0=(0.04, 0.04, 0.04), kd=(0.5, 0.05, 0.05)),
+}
+
+DEFAULT = "ggx_glossy"
+
+
+def cache_dir() -> str:
+    here = os.path.dirname(os.path.abspath(__file__))
+    return os.environ.get("BRDF_MOMENTS_SAMPLES") or os.path.join(here, ".cache")
+
+
+def sample_path(name: str, force: bool = False) -> str:
+    """Path of the named sample's MERL file, tabulating it first if needed."""
+    from addon.core.merl import tabulate, write_merl
+
+    if name not in CATALOG:
+        raise KeyError(f"unknown sample {name!r}; known: {', '.join(sorted(CATALOG))}")
+    folder = cache_dir()
+    os.makedirs(folder, exist_ok=True)
+    path = os.path.join(folder, f"{name}.binary")
+    if force or not os.path.exists(path):
+        write_merl(tabulate(CATALOG[name]), path)
+    return path

@@ -1,0 +1,70 @@
+"""Analytic, reciprocal BRDFs used to make sample tables (no measured data is shipped).
+
+Each model is a callable ``brdf(wi, wo) -> (3, n)`` on arrays of unit vectors (..., 3),
+in the local frame whose z is the normal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def _rgb(v):
+    return np.broadcast_to(np.asarray(v, dtype=float), (3,)).copy()
+
+
+@dataclass(frozen=True)
+class Lambertian:
+    albedo: tuple = (0.8, 0.8, 0.8)
+
+    def __call__(self, wi, wo):
+        n = np.asarray(wi).shape[:-1]
+        return np.broadcast_to((_rgb(self.albedo) / np.pi).reshape((3,) + (1,) * len(n)), (3,) + n).copy()
+
+
+@dataclass(frozen=True)
+class Phong:
+    """Diffuse plus a normalised lobe around the mirror: ks (n+2)/(2 pi) cos^n(wi, r(wo))."""
+
+    kd: tuple = (0.1, 0.1, 0.1)
+    ks: tuple = (0.5, 0.5, 0.5)
+    exponent: float = 200.0
+
+    def __call__(self, wi, wo):
+        wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+        r = wo * np.array([-1.0, -1.0, 1.0])
+        c = np.clip(np.sum(wi * r, axis=-1), 0.0, 1.0)
+        lobe = (self.exponent + 2.0) / (2.0 * np.pi) * c ** self.exponent
+        return _rgb(self.kd)[:, None] / np.pi + _rgb(self.ks)[:, None] * lobe.reshape(1, -1).reshape((1,) + c.shape)
+
+
+@dataclass(frozen=True)
+class GGX:
+    """Microfacet GGX with separable Smith masking and Schlick Fresnel over a Lambertian base."""
+
+    roughness: float = 0.1  # GGX alpha
+    f0: tuple = (0.04, 0.04, 0.04)
+    kd: tuple = (0.2, 0.2, 0.2)
+
+    def __call__(self, wi, wo):
+        wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+        a2 = self.roughness ** 2
+        h = wi + wo
+        h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+        ch = np.clip(h[..., 2], 0.0, 1.0)
+        d = a2 / (np.pi * ((a2 - 1.0) * ch * ch + 1.0) ** 2)
+        ci = np.clip(wi[..., 2], 1e-12, 1.0)
+        co = np.clip(wo[..., 2], 1e-12, 1.0)
+
+        def g1(c):
+            t2 = (1.0 - c * c) / (c * c)
+            return 2.0 / (1.0 + np.sqrt(1.0 + a2 * t2))
+
+        cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
+        schlick = (1.0 - cd) ** 5
+        f0 = _rgb(self.f0).reshape((3,) + (1,) * ch.ndim)
+        fres = f0 + (1.0 - f0) * schlick
+        spec = fres * (d * g1(ci) * g1(co) / (4.0 * ci * co))
+        return _rgb(self.kd).reshape((3,) + (1,) * ch.ndim) / np.pi + spec
