@@ -162,36 +162,47 @@ def table_sums(op: SliceOperator, values: np.ndarray, max_order: int = MAX_ORDER
 
 # --- analytic slices ---------------------------------------------------------------------
 
-def find_peak(f, theta_o, n0=129, iters=12):
-    """Locate the maximum of a slice function on [-pi/2, pi/2]^2 by repeated zooming."""
+def find_peak(f, theta_o, n0=129, iters=12, hint=None):
+    """Locate the maximum of a slice function on [-pi/2, pi/2]^2 by repeated zooming.
+
+    The mirror direction (and ``hint``) are always candidates: a lobe far narrower than the
+    first grid's spacing would otherwise be stepped over.
+    """
+    candidates = [(-theta_o, 0.0)] + ([tuple(hint)] if hint is not None else [])
     ct, cp, half = 0.0, 0.0, HALF_PI
     n = n0
+    best = -np.inf
     for _ in range(iters):
         t = np.clip(np.linspace(ct - half, ct + half, n), -HALF_PI, HALF_PI)
         p = np.clip(np.linspace(cp - half, cp + half, n), -HALF_PI, HALF_PI)
         T, P = np.meshgrid(t, p, indexing="ij")
-        v = np.asarray(f(T.ravel(), P.ravel(), theta_o), dtype=float)
-        v = v.reshape(-1, T.size).sum(axis=0)
+        pts_t = np.concatenate((T.ravel(), [c[0] for c in candidates]))
+        pts_p = np.concatenate((P.ravel(), [c[1] for c in candidates]))
+        v = np.asarray(f(pts_t, pts_p, theta_o), dtype=float).reshape(-1, pts_t.size).sum(axis=0)
         i = int(np.argmax(v))
-        ct, cp = float(T.ravel()[i]), float(P.ravel()[i])
-        half *= 4.0 / (n - 1) * 2.0
+        if v[i] >= best:
+            best = v[i]
+            ct, cp = float(pts_t[i]), float(pts_p[i])
+        candidates = [(ct, cp)]
+        half *= 8.0 / (n - 1)
         n = 33
         if half < 1e-9:
             break
     return ct, cp
 
 
-def function_sums(f, theta_o, max_order=MAX_ORDER, r0=1e-6, n_gauss=8, ratio=1.35, chunk=400):
+def function_sums(f, theta_o, max_order=MAX_ORDER, r0=1e-6, n_gauss=8, ratio=1.35, chunk=400, centre=None):
     """Raw sums of an analytic slice ``f(theta, phi, theta_o) -> (C, n) or (n,)``.
 
     Returns (sums (views, C, monomials), centre_theta (views,), centre_phi (views,)).
     A graded tensor rule around each view's located peak resolves lobes down to 1e-5 rad.
+    ``centre(theta_o) -> (theta, phi)`` may hint where the peak is.
     """
     theta_o = np.atleast_1d(np.asarray(theta_o, dtype=float))
     nm = n_monomials(max_order)
     res, ct_all, cp_all = [], [], []
     for to in theta_o:
-        ct, cp = find_peak(f, to)
+        ct, cp = find_peak(f, to, hint=None if centre is None else centre(to))
         t, wt, p, wp = graded_tensor_rule(ct, cp, r0, n_gauss, ratio)
         acc = None
         for i in range(0, len(t), chunk):
