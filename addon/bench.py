@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-ALL_SECTIONS = ("closed", "tables", "memory")
+ALL_SECTIONS = ("closed", "tables", "memory", "fits")
 
 
 def _median_time(fn, repeat):
@@ -191,16 +191,23 @@ def bench_tables(quick, names=None):
 # --- memory and cold start ---------------------------------------------------------------
 
 _MEM_SCRIPT = r"""
-import resource, sys, time
+import sys, time
 sys.path.insert(0, {root!r})
+
+def hwm():
+    # VmHWM (peak RSS) in kB; unlike ru_maxrss it is not inherited across exec.
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1])
+
 import samples
 from addon.core.merl import read_merl
 from addon.core.profiles import compute_profiles
 path = samples.sample_path("ggx_glossy")
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+base = hwm()
 t = time.perf_counter()
 compute_profiles(read_merl(path))
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, base, time.perf_counter() - t)
+print(hwm(), base, time.perf_counter() - t)
 """
 
 
@@ -211,7 +218,8 @@ def bench_memory():
     script = _MEM_SCRIPT.format(root=root)
     out = ["### Peak memory and the slice-operator cache", "",
            "One material (ggx_glossy, 90 views, order 4) analysed in a fresh Python process; peak",
-           "resident set size from `getrusage` (includes the interpreter, numpy and scipy).", "",
+           "resident set size (VmHWM; includes the interpreter, numpy and scipy, and the operator's",
+           "memory-mapped pages).", "",
            "| run | wall time | peak RSS | RSS before analysis |", "|---|---|---|---|"]
     with tempfile.TemporaryDirectory() as cold:
         for label, env_cache in (("cold cache (operator built)", cold), ("warm cache (operator loaded)", cold)):
@@ -219,6 +227,53 @@ def bench_memory():
             res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, check=True)
             peak, base, t = res.stdout.split()
             out.append(f"| {label} | {float(t):.2f} s | {int(peak) / 1024:.0f} MB | {int(base) / 1024:.0f} MB |")
+    return out
+
+
+def bench_fits(quick):
+    """Fit time per material, and ``analyze`` over a set of synthetic materials on all cores."""
+    import shutil
+    import tempfile
+
+    import samples
+    from .analyze import analyze
+    from .core.fits import fit_material
+    from .core.merl import read_merl, tabulate, write_merl
+    from .core.profiles import compute_profiles
+
+    names = ("ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "phong", "red_plastic")
+    times = []
+    for name in names:
+        prof = compute_profiles(read_merl(samples.sample_path(name)))
+        t, _ = _median_time(lambda: fit_material(prof), 3 if quick else 7)
+        times.append(t)
+    n = 20 if quick else 100
+    out = ["### Fits and whole-set analysis", "",
+           f"`fit_material` (energy spline with knot search, mean slope, variance, per-channel colour) on",
+           f"{len(names)} samples: median {np.median(times) * 1e3:.0f} ms per material "
+           f"(range {min(times) * 1e3:.0f}–{max(times) * 1e3:.0f} ms).", ""]
+    folder = tempfile.mkdtemp(prefix="brdf-bench-set-")
+    try:
+        t0 = time.perf_counter()
+        for name, model in samples.synthetic_set(n, seed=0):
+            write_merl(tabulate(model), os.path.join(folder, f"{name}.binary"))
+        t_make = time.perf_counter() - t0
+        res = os.path.join(folder, "out")
+        t0 = time.perf_counter()
+        problems = analyze([folder], res, log=lambda *a: None)
+        t_an = time.perf_counter() - t0
+        if problems:
+            raise RuntimeError("; ".join(problems))
+        t0 = time.perf_counter()
+        analyze([folder], res + "-noplots", plots=False, log=lambda *a: None)
+        t_np = time.perf_counter() - t0
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    out += [f"`analyze` on {n} synthetic materials (`samples.synthetic_set`, GGX and Phong variations, tabulated",
+            f"to MERL files beforehand in {t_make:.0f} s), {os.cpu_count()} worker processes:", "",
+            "| run | wall time | per material |", "|---|---|---|",
+            f"| profiles + fits + JSON + CSV + 8 plots | {t_an:.1f} s | {t_an / n * 1e3:.0f} ms |",
+            f"| without plots | {t_np:.1f} s | {t_np / n * 1e3:.0f} ms |"]
     return out
 
 
@@ -231,6 +286,6 @@ def main(args):
           f"Python {platform.python_version()}, numpy {np.__version__})\n")
     for name in sections:
         lines = {"closed": lambda: bench_closed(args.quick), "tables": lambda: bench_tables(args.quick),
-                 "memory": bench_memory}[name]()
+                 "memory": bench_memory, "fits": lambda: bench_fits(args.quick)}[name]()
         print("\n".join(lines) + "\n", flush=True)
     return 0

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
@@ -56,9 +57,17 @@ def write_json_atomic(data, path):
         raise
 
 
-def _progress(label):
+def _progress(label, always=False):
+    """A progress bar on a terminal; with ``always``, plain lines at every tenth elsewhere."""
     if not sys.stderr.isatty():
-        return None
+        if not always:
+            return None
+
+        def lines(done, total):
+            if done == total or done % max(1, total // 10) == 0:
+                print(f"{label}: {done}/{total}", file=sys.stderr, flush=True)
+
+        return lines
 
     def report(done, total):
         width = 30
@@ -90,6 +99,41 @@ def cmd_profiles(args):
     return 0
 
 
+def cmd_fit(args):
+    from .analyze import collect_inputs, load_profiles, material_name
+    from .core.fits import fit_set
+
+    paths, problems = collect_inputs(args.files)
+    if problems:
+        raise InputError(problems[0])
+    names = [material_name(p) for p in paths]
+    profiles = {n: load_profiles(p) for n, p in zip(names, paths)}
+    result = fit_set(profiles)
+    write_json_atomic(result, args.out)
+    for n in names:
+        f = result["materials"][n]
+        slope = "—" if f["mu_slope"] is None else f"{f['mu_slope']:+.4f}"
+        s2 = "—" if f["sigma2"] is None else f"{f['sigma2']:.4f}"
+        flag = "  (outside the paper's model)" if f["outside_model"] else ""
+        print(f"{n}: alpha_b {f['alpha_b']:.4g}, knots {math.degrees(f['theta0']):.1f}°-"
+              f"{math.degrees(f['theta1']):.1f}°, mu~ {slope}, sigma2~ {s2}{flag}")
+    if result.get("correlation", {}).get("a") is not None:
+        c = result["correlation"]
+        print(f"correlation: sigma2 = {c['a']:.4f} mu^2 {c['b']:+.4f} mu {c['c']:+.4f} (RMSE {c['rmse']:.3g})")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_analyze(args):
+    from .analyze import analyze
+
+    problems = analyze(args.inputs, args.out, workers=args.jobs, progress=_progress("analysing", always=True),
+                       plots=not args.no_plots)
+    for p in problems:
+        print(f"error: {p}", file=sys.stderr)
+    return 2 if problems else 0
+
+
 def cmd_bench(args):
     from . import bench
 
@@ -112,9 +156,21 @@ def build_parser():
     sp.add_argument("--plot", help="also write a PNG of the profiles")
     sp.set_defaults(func=cmd_profiles)
 
+    sf = sub.add_parser("fit", help="Sec. 3.4 fits of one or more materials, as JSON")
+    sf.add_argument("files", nargs="+", help="MERL .binary files (or profiles JSON written by 'profiles')")
+    sf.add_argument("--out", required=True, help="output JSON path")
+    sf.set_defaults(func=cmd_fit)
+
+    sa = sub.add_parser("analyze", help="profiles, fits, plots and a summary table for a set of materials")
+    sa.add_argument("inputs", nargs="+", help="folders of .binary files, or files")
+    sa.add_argument("--out", required=True, help="output folder")
+    sa.add_argument("--jobs", type=_positive_int, default=None, help="worker processes (default: all cores)")
+    sa.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    sa.set_defaults(func=cmd_analyze)
+
     sb = sub.add_parser("bench", help="benchmark tables (run time against error)")
     sb.add_argument("--quick", action="store_true", help="fewer repetitions and views")
-    sb.add_argument("--only", nargs="*", help="sections to run (profiles, memory)")
+    sb.add_argument("--only", nargs="*", help="sections to run (closed, tables, memory, fits)")
     sb.set_defaults(func=cmd_bench)
     return p
 

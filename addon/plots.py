@@ -83,3 +83,189 @@ def plot_profiles(prof, path, title=None):
     save_figure(fig, path)
     plt.close(fig)
     return path
+
+
+# --- sets of materials (paper Figures 4-7) -------------------------------------------------
+
+def material_colours(names):
+    """One colour per material, stable across every plot of a set (sorted-name order)."""
+    import matplotlib
+
+    cmap = matplotlib.colormaps["tab20"] if len(names) <= 20 else matplotlib.colormaps["turbo"]
+    order = sorted(names)
+    n = max(len(order) - 1, 1)
+    return {name: cmap(i % 20) if len(order) <= 20 else cmap(i / n) for i, name in enumerate(order)}
+
+
+ORDER_PANELS = {
+    0: ("Order 0: energy", [("alpha", "α")], "α"),
+    1: ("Order 1: mean", [("mu_theta", "μθ"), ("mu_phi", "μφ (near zero)")], "rad"),
+    2: ("Order 2: covariance", [("sigma_tt", "σθ²"), ("sigma_pp", "σφ²"), ("sigma_tp", "Σ11 (near zero)")], "rad²"),
+    3: ("Order 3: co-skewness", [("skew_30", "γ30"), ("skew_12", "γ12"), ("skew_21", "γ21 (near zero)"),
+                                 ("skew_03", "γ03 (near zero)")], "standardized"),
+    4: ("Order 4: excess co-kurtosis", [("kurt_40", "γ40"), ("kurt_22", "γ22"), ("kurt_04", "γ04"),
+                                        ("kurt_31", "γ31 (near zero)"), ("kurt_13", "γ13 (near zero)")],
+        "standardized"),
+}
+
+
+def _legend_outside(fig, colours, limit=40):
+    from matplotlib.lines import Line2D
+
+    names = sorted(colours)[:limit]
+    handles = [Line2D([], [], color=colours[n], lw=2) for n in names]
+    fig.legend(handles, names, loc="center right", fontsize=7, frameon=False)
+
+
+def plot_set_profiles(profiles, folder, channel="avg"):
+    """Figures 4 and 5: every material's profile, one figure per moment order."""
+    colours = material_colours(list(profiles))
+    paths = []
+    for order, (title, keys, unit) in ORDER_PANELS.items():
+        keys = [k for k in keys if all(k[0] in p[channel] for p in profiles.values())]
+        if not keys:
+            continue
+        plt, fig, axes = _figure(1, len(keys), (4.2 * len(keys) + 2.0, 3.8))
+        for ax, (key, label) in zip(axes.flat, keys):
+            for name, p in profiles.items():
+                ax.plot(np.degrees(p.theta_o), p[channel][key], color=colours[name], lw=1.0)
+            ax.set_title(label)
+            ax.set_xlabel("view elevation θo (degrees)")
+            ax.set_ylabel(unit)
+            ax.set_xlim(0, 90)
+            ax.grid(alpha=0.3)
+        fig.suptitle(f"{title} — {len(profiles)} materials ({channel} channel)")
+        fig.tight_layout(rect=(0, 0, 0.84, 1))
+        _legend_outside(fig, colours)
+        path = os.path.join(folder, f"profiles_order{order}.png")
+        save_figure(fig, path)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def plot_fits(profiles, fits, path, channel="avg"):
+    """Figure 6: measured and fitted profiles (energy, mean, average variance), their errors,
+    and insets with the best, an intermediate and the worst fit by RMSE."""
+    from .core.fits import energy_curve
+
+    colours = material_colours(list(profiles))
+    names = [n for n in sorted(profiles) if fits[n]["energy"]["rmse"] is not None]
+    plt, fig, axes = _figure(3, 3, (15, 11))
+    rows = [("energy α", "energy", "α"), ("mean μθ", "mean", "rad"), ("average variance (σθ²+σφ²)/2", "variance", "rad²")]
+
+    def measured(name, row):
+        p = profiles[name][channel]
+        if row == 0:
+            return p["alpha"]
+        if row == 1:
+            return p["mu_theta"]
+        return 0.5 * (np.asarray(p["sigma_tt"]) + np.asarray(p["sigma_pp"]))
+
+    def fitted(name, row, t):
+        f = fits[name]
+        if row == 0:
+            return energy_curve(t, f["alpha_b"], f["theta0"], f["theta1"], f["alpha1"], f["m1"])
+        if row == 1:
+            return (f["mu_slope"] or 0.0) * t
+        return np.full_like(t, f["sigma2"] or 0.0)
+
+    for r, (title, key, unit) in enumerate(rows):
+        ax_m, ax_f, ax_e = axes[r]
+        for name in names:
+            t = np.asarray(profiles[name].theta_o)
+            ax_m.plot(np.degrees(t), measured(name, r), color=colours[name], lw=1.0)
+            ax_f.plot(np.degrees(t), fitted(name, r, t), color=colours[name], lw=1.0)
+        for ax, kind in ((ax_m, "measured"), (ax_f, "fitted")):
+            ax.set_title(f"{title}: {kind}")
+            ax.set_xlabel("view elevation θo (degrees)")
+            ax.set_ylabel(unit)
+            ax.grid(alpha=0.3)
+        mae = [fits[n][key]["mae"] for n in names]
+        rmse = [fits[n][key]["rmse"] for n in names]
+        x = np.arange(len(names))
+        ax_e.bar(x - 0.2, mae, 0.4, color="#1f77b4", label="MAE")
+        ax_e.bar(x + 0.2, rmse, 0.4, color="#9467bd", label="RMSE")
+        ax_e.set_xticks(x, names, rotation=90, fontsize=6 if len(names) > 20 else 8)
+        ax_e.set_title(f"{title}: fit errors")
+        ax_e.set_ylabel(unit)
+        ax_e.legend(fontsize=8)
+        if names:
+            lo, hi = ax_f.get_ylim()
+            ax_f.set_ylim(lo, lo + (hi - lo) * 1.75)  # headroom: the insets sit above the curves
+            ranked = sorted(names, key=lambda n: fits[n][key]["rmse"])
+            picks = [("best", ranked[0]), ("intermediate", ranked[len(ranked) // 2]), ("worst", ranked[-1])]
+            for i, (label, name) in enumerate(picks):
+                inset = ax_f.inset_axes([0.02 + 0.33 * i, 0.62, 0.3, 0.34])
+                t = np.asarray(profiles[name].theta_o)
+                inset.plot(np.degrees(t), measured(name, r), color="#444444", lw=0.9)
+                inset.plot(np.degrees(t), fitted(name, r, t), color=colours[name], lw=1.2, ls="--")
+                inset.set_title(f"{label}: {name}", fontsize=6)
+                inset.tick_params(labelsize=5)
+    fig.suptitle("Fitted moment profiles (inset: measured grey, fitted dashed)")
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+    return path
+
+
+def plot_energy_spline(profiles, fits, joint, path, channel="avg"):
+    """Figure 7a: energy profiles normalised by alpha_b, the fitted splines and the knots."""
+    from .core.fits import energy_curve
+
+    colours = material_colours(list(profiles))
+    plt, fig, axes = _figure(1, 1, (8.5, 5.5))
+    ax = axes[0, 0]
+    t = np.radians(np.linspace(0, 89, 300))
+    for name in sorted(profiles):
+        f = fits[name]
+        if f["energy"]["rmse"] is None or not f["alpha_b"]:
+            continue
+        p = profiles[name]
+        ax.plot(np.degrees(p.theta_o), np.asarray(p[channel]["alpha"]) / f["alpha_b"], ".", ms=2,
+                color=colours[name], alpha=0.5)
+        ax.plot(np.degrees(t), energy_curve(t, f["alpha_b"], f["theta0"], f["theta1"], f["alpha1"], f["m1"])
+                / f["alpha_b"], color=colours[name], lw=1.2, label=name)
+    if joint:
+        for k, ls in (("theta0", "--"), ("theta1", ":")):
+            ax.axvline(np.degrees(joint[k]), color="k", ls=ls, lw=1,
+                       label=f"joint {'θ0' if k == 'theta0' else 'θ1'} = {np.degrees(joint[k]):.1f}°")
+    ax.set_xlabel("view elevation θo (degrees)")
+    ax.set_ylabel("α / α̃b (relative energy)")
+    ax.set_title("Energy: constant base α̃b, Hermite boost from θ0 (slope 0) to θ1, then a line")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+    return path
+
+
+def plot_correlation(fits, correlation, path):
+    """Figure 7b: fitted mean slope against average variance, with the constrained quadratic."""
+    from .core.fits import LAMBERT_VARIANCE, correlation_curve
+
+    colours = material_colours(list(fits))
+    plt, fig, axes = _figure(1, 1, (7.5, 5.5))
+    ax = axes[0, 0]
+    for name in sorted(fits):
+        f = fits[name]
+        if f["mu_slope"] is None or f["sigma2"] is None:
+            continue
+        marker = "x" if f["outside_model"] else "o"
+        ax.plot(f["mu_slope"], f["sigma2"], marker, color=colours[name], ms=6, label=name)
+    if correlation and correlation.get("a") is not None:
+        mu = np.linspace(-1, 0, 200)
+        a = correlation["a"]
+        ax.plot(mu, correlation_curve(mu, a), "k-", lw=1.4,
+                label=f"σ̃² = {a:.3f} μ̃² {correlation['b']:+.3f} μ̃ + π²/12  (RMSE {correlation['rmse']:.3g})")
+    ax.plot([-1, 0], [0, LAMBERT_VARIANCE], "ks", ms=7, mfc="none", label="mirror (−1, 0), Lambertian (0, π²/12)")
+    ax.set_xlabel("mean slope μ̃ (−1 mirror … 0 Lambertian)")
+    ax.set_ylabel("average variance σ̃² (rad²)")
+    ax.set_title("Mean–variance correlation (× = outside the paper's model)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+    return path

@@ -24,6 +24,30 @@ CATALOG = {
 DEFAULT = "ggx_glossy"
 
 
+def synthetic_set(n: int, seed: int = 0):
+    """``n`` varied analytic materials (name, brdf) for database-scale tests and benchmarks."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        rough = float(np.exp(rng.uniform(np.log(0.03), np.log(0.6))))
+        metal = rng.uniform() < 0.4
+        if metal:
+            f0 = tuple(float(v) for v in rng.uniform(0.5, 1.0, 3))
+            kd = (0.0, 0.0, 0.0)
+        else:
+            f0 = (0.04, 0.04, 0.04)
+            kd = tuple(float(v) for v in rng.uniform(0.02, 0.6, 3))
+        if rng.uniform() < 0.15:
+            model = Phong(kd=kd, ks=tuple(float(v) for v in rng.uniform(0.2, 0.8, 3)),
+                          exponent=float(np.exp(rng.uniform(np.log(10), np.log(2000)))))
+        else:
+            model = GGX(roughness=rough, f0=f0, kd=kd)
+        out.append((f"synthetic_{i:03d}", model))
+    return out
+
+
 def cache_dir() -> str:
     here = os.path.dirname(os.path.abspath(__file__))
     return os.environ.get("BRDF_MOMENTS_SAMPLES") or os.path.join(here, ".cache")

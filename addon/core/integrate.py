@@ -70,25 +70,36 @@ def _build_view(theta_o, params):
     rule = slice_rule(theta_o, params)
     cells = cell_indices(rule.theta_h, rule.theta_d, rule.phi_d)
     uniq, inv = np.unique(cells, return_inverse=True)
-    mono = monomials(rule.theta + theta_o, rule.phi, MAX_ORDER) * rule.weight[:, None]
-    agg = np.empty((len(uniq), mono.shape[1]))
-    for k in range(mono.shape[1]):
-        agg[:, k] = np.bincount(inv, weights=mono[:, k], minlength=len(uniq))
-    return uniq.astype(np.int32), agg.astype(np.float32)
+    x = rule.theta + theta_o
+    agg = np.empty((len(uniq), n_monomials(MAX_ORDER)), dtype=np.float32)
+    # One monomial at a time: materialising all 15 for ~600k nodes would dominate the peak.
+    xp = rule.weight.copy()
+    for n in range(MAX_ORDER + 1):
+        wp = xp.copy()
+        for m in range(MAX_ORDER + 1 - n):
+            agg[:, exponents(MAX_ORDER).index((n, m))] = np.bincount(inv, weights=wp, minlength=len(uniq))
+            wp *= rule.phi
+        xp *= x
+    return uniq.astype(np.int32), agg
 
 
-def build_operator(theta_o, params: RuleParams = RuleParams(), progress=None) -> SliceOperator:
-    theta_o = np.asarray(theta_o, dtype=float)
-    cells, weights, offsets = [], [], [0]
+def _build_chunks(theta_o, params, progress):
+    cells, weights = [], []
     for k, t in enumerate(theta_o):
         c, w = _build_view(float(t), params)
         cells.append(c)
         weights.append(w)
-        offsets.append(offsets[-1] + len(c))
         if progress:
             progress(k + 1, len(theta_o))
-    return SliceOperator(theta_o, np.asarray(offsets, dtype=np.int64), np.concatenate(cells),
-                         np.concatenate(weights))
+    offsets = np.concatenate(([0], np.cumsum([len(c) for c in cells]))).astype(np.int64)
+    return cells, weights, offsets
+
+
+def build_operator(theta_o, params: RuleParams = RuleParams(), progress=None) -> SliceOperator:
+    """Build in memory (no cache). ``get_operator`` is the cached, lower-peak-memory path."""
+    theta_o = np.asarray(theta_o, dtype=float)
+    cells, weights, offsets = _build_chunks(theta_o, params, progress)
+    return SliceOperator(theta_o, offsets, np.concatenate(cells), np.concatenate(weights))
 
 
 def _operator_key(theta_o, params):
@@ -114,16 +125,16 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
     folder = os.path.join(cache_dir or default_cache_dir(), f"operator-{key}")
     op = None
     if os.path.isdir(folder):
-        try:
-            op = SliceOperator(np.load(os.path.join(folder, "theta_o.npy")),
-                               np.load(os.path.join(folder, "offsets.npy")),
-                               np.load(os.path.join(folder, "cells.npy"), mmap_mode="r"),
-                               np.load(os.path.join(folder, "weights.npy"), mmap_mode="r"))
-        except (OSError, ValueError):
-            op = None  # a damaged cache is rebuilt, never trusted
+        op = _load_operator(folder)
     if op is None:
-        op = build_operator(theta_o, params, progress)
-        _save_operator(op, folder)
+        cells, weights, offsets = _build_chunks(theta_o, params, progress)
+        # Stream the chunks into the cache and map them back: concatenating in memory would
+        # hold the operator twice at the peak.
+        if _save_operator(theta_o, offsets, cells, weights, folder):
+            op = _load_operator(folder)
+        if op is None:
+            op = SliceOperator(theta_o, offsets, np.concatenate(cells), np.concatenate(weights))
+        del cells, weights
     if not memo:
         _SMALL[key] = op
     else:
@@ -132,19 +143,50 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
     return op
 
 
-def _save_operator(op, folder):
+def _load_operator(folder):
+    try:
+        op = SliceOperator(np.load(os.path.join(folder, "theta_o.npy")),
+                           np.load(os.path.join(folder, "offsets.npy")),
+                           np.load(os.path.join(folder, "cells.npy"), mmap_mode="r"),
+                           np.load(os.path.join(folder, "weights.npy"), mmap_mode="r"))
+    except (OSError, ValueError, EOFError):
+        return None  # a damaged cache is rebuilt, never trusted
+    n = int(op.offsets[-1])
+    if op.cells.shape != (n,) or op.weights.shape != (n, n_monomials(MAX_ORDER)):
+        return None
+    return op
+
+
+def _write_npy_chunks(path, chunks, dtype, shape):
+    with open(path, "wb") as fh:
+        np.lib.format.write_array_header_2_0(fh, {"descr": np.dtype(dtype).str, "fortran_order": False,
+                                                  "shape": shape})
+        for c in chunks:
+            fh.write(np.ascontiguousarray(c, dtype=dtype).tobytes())
+
+
+def _save_operator(theta_o, offsets, cells, weights, folder) -> bool:
+    """Write the cache folder atomically (temp folder, then rename). False if unwritable."""
     parent = os.path.dirname(folder)
     try:
         os.makedirs(parent, exist_ok=True)
         tmp = tempfile.mkdtemp(prefix=".tmp-op-", dir=parent)
     except OSError:
-        return  # an unwritable cache only costs time
+        return False  # an unwritable cache only costs time
     try:
-        for name in ("theta_o", "offsets", "cells", "weights"):
-            np.save(os.path.join(tmp, f"{name}.npy"), getattr(op, name))
-        os.replace(tmp, folder)
+        n = int(offsets[-1])
+        np.save(os.path.join(tmp, "theta_o.npy"), theta_o)
+        np.save(os.path.join(tmp, "offsets.npy"), offsets)
+        _write_npy_chunks(os.path.join(tmp, "cells.npy"), cells, np.int32, (n,))
+        _write_npy_chunks(os.path.join(tmp, "weights.npy"), weights, np.float32, (n, n_monomials(MAX_ORDER)))
+        if os.path.isdir(folder):  # another process won the race; keep theirs
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            os.replace(tmp, folder)
+        return True
     except OSError:
         shutil.rmtree(tmp, ignore_errors=True)
+        return False
 
 
 def table_sums(op: SliceOperator, values: np.ndarray, max_order: int = MAX_ORDER) -> np.ndarray:

@@ -136,12 +136,12 @@ def _fade(u, ua, ub):
 class RuleParams:
     """Resolution of the hybrid slice rule (defaults chosen by the benchmark)."""
 
-    n_phi: int = 360          # half-vector rays
+    n_phi: int = 1440         # half-vector rays
     n_gauss: int = 3          # Gauss nodes per theta_h cell on a ray
     fade_from: float = 60.0   # |phi| (deg) where the half-vector part starts to fade out
     fade_to: float = 75.0     # ... and where it is gone: the poles (|phi| = 90) never see it
-    n_panels: int = 48        # tensor panels along theta in the pole strips
-    n_panels_phi: int = 8     # ... and along phi, per strip
+    n_panels: int = 192       # tensor panels along theta in the pole strips
+    n_panels_phi: int = 32    # ... and along phi, per strip
     n_gauss_far: int = 4
 
     def key(self):
