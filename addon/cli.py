@@ -134,6 +134,49 @@ def cmd_analyze(args):
     return 2 if problems else 0
 
 
+def _rgb(text):
+    try:
+        parts = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected R,G,B numbers: {text!r}") from None
+    if len(parts) != 3 or not all(math.isfinite(v) and v >= 0 for v in parts):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers >= 0: {text!r}")
+    return tuple(parts)
+
+
+def _finite(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"not a finite number: {text!r}")
+    return v
+
+
+def cmd_edit(args):
+    from .core.edit import EditTargets, edit
+    from .core.merl import read_merl, write_merl
+
+    if os.path.exists(args.out) and os.path.samefile(args.out, args.file):
+        raise InputError(f"{args.out}: refusing to overwrite the input file; choose another output name")
+    table = read_merl(args.file)
+    colour = args.alpha or (1.0, 1.0, 1.0)
+    targets = EditTargets(strength=args.alpha_scale if args.alpha_scale is not None else 1.0, colour=colour,
+                          grazing_boost=args.grazing_boost, mu_slope=args.mu, sigma2=args.sigma2, mode=args.mode)
+    res = edit(table, targets)
+    write_merl(res.table, args.out, source=args.file)
+    mu = "—" if res.achieved_mu_slope is None else f"{res.achieved_mu_slope:+.4f}"
+    s2 = "—" if res.achieved_sigma2 is None else f"{res.achieved_sigma2:.5f}"
+    print(f"target   mean slope {res.target_mu_slope:+.4f}  variance {res.target_sigma2:.5f}")
+    print(f"achieved mean slope {mu}  variance {s2}")
+    print("largest directional albedo (r, g, b): " + ", ".join(f"{v:.4f}" for v in res.max_albedo))
+    for w in res.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"wrote {args.out}")
+    return 0
+
+
 def cmd_bench(args):
     from . import bench
 
@@ -167,6 +210,18 @@ def build_parser():
     sa.add_argument("--jobs", type=_positive_int, default=None, help="worker processes (default: all cores)")
     sa.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sa.set_defaults(func=cmd_analyze)
+
+    se = sub.add_parser("edit", help="re-synthesize a MERL file from moment sliders")
+    se.add_argument("file", help="input MERL .binary file (never modified)")
+    se.add_argument("--out", required=True, help="output MERL .binary path (must differ from the input)")
+    energy = se.add_mutually_exclusive_group()
+    energy.add_argument("--alpha-scale", type=_finite, help="scale the energy by S")
+    energy.add_argument("--alpha", type=_rgb, help="per-channel energy scale R,G,B")
+    se.add_argument("--grazing-boost", type=_finite, default=1.0, help="scale of the energy above the base (1)")
+    se.add_argument("--mu", type=_finite, help="target mean slope in [-1, 0]")
+    se.add_argument("--sigma2", type=_finite, help="target average variance in (0, pi^2/12]")
+    se.add_argument("--mode", choices=("warp", "model"), default="warp")
+    se.set_defaults(func=cmd_edit)
 
     sb = sub.add_parser("bench", help="benchmark tables (run time against error)")
     sb.add_argument("--quick", action="store_true", help="fewer repetitions and views")

@@ -69,3 +69,24 @@ def test_missing_file_and_bad_options_exit_2(tmp_path):
     assert res.returncode == 2 and "none.binary" in res.stderr and "Traceback" not in res.stderr
     res = run("profiles", str(tmp_path / "none.binary"), "--out", "x.json", "--max-elevation", "95")
     assert res.returncode == 2 and "[0, 90)" in res.stderr
+
+
+def test_edit_without_sliders_copies_values_and_never_overwrites(tmp_path):
+    import hashlib
+
+    import numpy as np
+    import samples
+    from addon.core.merl import read_merl
+
+    src = samples.sample_path("gold")
+    digest = hashlib.sha256(open(src, "rb").read()).hexdigest()
+    out = tmp_path / "same.binary"
+    res = run("edit", src, "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    assert "achieved mean slope" in res.stdout and "largest directional albedo" in res.stdout
+    np.testing.assert_array_equal(read_merl(out).rho, read_merl(src).rho)
+    res = run("edit", src, "--out", src, "--alpha-scale", "0.5")
+    assert res.returncode == 2 and "overwrite the input" in res.stderr
+    assert hashlib.sha256(open(src, "rb").read()).hexdigest() == digest
+    res = run("edit", src, "--out", str(tmp_path / "x.binary"), "--alpha", "1,2")
+    assert res.returncode == 2 and "R,G,B" in res.stderr

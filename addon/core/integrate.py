@@ -25,7 +25,8 @@ from .merl import N_CELLS, cell_indices
 from .moments import exponents, monomials, n_monomials
 from .quadrature import RuleParams, graded_tensor_rule, slice_rule
 
-OPERATOR_VERSION = 3
+OPERATOR_VERSION = 4
+N_COLUMNS = 16  # the 15 monomials, then the directional-albedo weight cos(theta) cos(phi)^2
 MAX_ORDER = 4
 
 
@@ -55,7 +56,7 @@ class SliceOperator:
     theta_o: np.ndarray
     offsets: np.ndarray
     cells: np.ndarray
-    weights: np.ndarray  # (total, 15) float32
+    weights: np.ndarray  # (total, 16) float32: 15 monomials, then the albedo weight
 
     def view(self, k):
         a, b = self.offsets[k], self.offsets[k + 1]
@@ -71,7 +72,7 @@ def _build_view(theta_o, params):
     cells = cell_indices(rule.theta_h, rule.theta_d, rule.phi_d)
     uniq, inv = np.unique(cells, return_inverse=True)
     x = rule.theta + theta_o
-    agg = np.empty((len(uniq), n_monomials(MAX_ORDER)), dtype=np.float32)
+    agg = np.empty((len(uniq), N_COLUMNS), dtype=np.float32)
     # One monomial at a time: materialising all 15 for ~600k nodes would dominate the peak.
     xp = rule.weight.copy()
     for n in range(MAX_ORDER + 1):
@@ -80,6 +81,9 @@ def _build_view(theta_o, params):
             agg[:, exponents(MAX_ORDER).index((n, m))] = np.bincount(inv, weights=wp, minlength=len(uniq))
             wp *= rule.phi
         xp *= x
+    # cos(theta_i) dw = cos(theta) cos(phi) * cos(phi) dtheta dphi: albedo from the same cells.
+    agg[:, -1] = np.bincount(inv, weights=rule.weight * np.cos(rule.theta) * np.cos(rule.phi) ** 2,
+                             minlength=len(uniq))
     return uniq.astype(np.int32), agg
 
 
@@ -152,7 +156,7 @@ def _load_operator(folder):
     except (OSError, ValueError, EOFError):
         return None  # a damaged cache is rebuilt, never trusted
     n = int(op.offsets[-1])
-    if op.cells.shape != (n,) or op.weights.shape != (n, n_monomials(MAX_ORDER)):
+    if op.cells.shape != (n,) or op.weights.shape != (n, N_COLUMNS):
         return None
     return op
 
@@ -178,7 +182,7 @@ def _save_operator(theta_o, offsets, cells, weights, folder) -> bool:
         np.save(os.path.join(tmp, "theta_o.npy"), theta_o)
         np.save(os.path.join(tmp, "offsets.npy"), offsets)
         _write_npy_chunks(os.path.join(tmp, "cells.npy"), cells, np.int32, (n,))
-        _write_npy_chunks(os.path.join(tmp, "weights.npy"), weights, np.float32, (n, n_monomials(MAX_ORDER)))
+        _write_npy_chunks(os.path.join(tmp, "weights.npy"), weights, np.float32, (n, N_COLUMNS))
         if os.path.isdir(folder):  # another process won the race; keep theirs
             shutil.rmtree(tmp, ignore_errors=True)
         else:
@@ -407,11 +411,3 @@ def _cell_lookup(theta_o):
         return cell_indices(*half_diff_from_directions(wi, np.broadcast_to(wo, wi.shape)))
 
     return cells
-
-
-def all_cells_weight_check(op: SliceOperator) -> float:
-    """Largest relative deviation of a view's total weight from pi^2 (a self-check)."""
-    dev = [abs(float(op.view(k)[1][:, 0].astype(float).sum()) / np.pi ** 2 - 1.0)
-           for k in range(len(op.theta_o))]
-    return max(dev) if dev else 0.0
-

@@ -1,0 +1,97 @@
+"""Editing (SPEC §3 "Editing"): properties that hold for every edit."""
+
+import math
+
+import numpy as np
+import pytest
+
+from addon.core.edit import EditTargets, directional_albedo, edit, scale_to_albedo, solve_truncated, _trunc_moments
+from addon.core.fits import fit_material
+from addon.core.merl import lookup
+from addon.core.geometry import view_centred
+from addon.core.profiles import compute_profiles
+
+
+@pytest.fixture(scope="module")
+def glossy(sample_table):
+    table = sample_table("ggx_glossy")
+    prof = compute_profiles(table)
+    return table, prof, fit_material(prof)
+
+
+def test_identity_edit_returns_the_input_values_exactly(glossy):
+    table, prof, fit = glossy
+    before = table.rho.copy()
+    res = edit(table, EditTargets(), prof, fit)
+    np.testing.assert_array_equal(res.table.rho, table.rho)
+    np.testing.assert_array_equal(res.table.valid, table.valid)
+    np.testing.assert_array_equal(table.rho, before)  # the input is untouched
+    assert res.achieved_mu_slope == pytest.approx(fit["mu_slope"], abs=1e-9)
+
+
+def test_energy_scaling_is_exact(glossy):
+    table, prof, fit = glossy
+    res = edit(table, EditTargets(strength=0.5, colour=(1.0, 0.5, 0.25)), prof, fit)
+    for i, ch in enumerate("rgb"):
+        want = 0.5 * (1.0, 0.5, 0.25)[i] * prof[ch]["alpha"]
+        np.testing.assert_allclose(res.profiles[ch]["alpha"], want, rtol=1e-5)
+    # The shape is untouched: same mean and variance profiles.
+    np.testing.assert_allclose(res.profiles["avg"]["mu_theta"], prof["avg"]["mu_theta"], atol=1e-6)
+    np.testing.assert_allclose(res.profiles["avg"]["sigma_tt"], prof["avg"]["sigma_tt"], rtol=1e-5)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("targets", [EditTargets(mu_slope=-0.95), EditTargets(mode="model", mu_slope=-1.0, sigma2=0.1)])
+def test_edited_table_is_reciprocal_and_keeps_missing_cells(glossy, targets):
+    table, prof, fit = glossy
+    res = edit(table, targets, prof, fit)
+    rng = np.random.default_rng(0)
+    wi = view_centred(rng.uniform(-1.4, 1.4, 2000), rng.uniform(-1.4, 1.4, 2000))
+    wo = view_centred(rng.uniform(-1.4, 1.4, 2000), rng.uniform(-1.4, 1.4, 2000))
+    a, _ = lookup(res.table, wi, wo)
+    b, _ = lookup(res.table, wo, wi)
+    np.testing.assert_allclose(a, b, rtol=1e-12)
+    np.testing.assert_array_equal(res.table.valid, table.valid)
+    assert np.isfinite(res.table.rho).all() and (res.table.rho >= 0).all()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("targets", [
+    EditTargets(sigma2=1e-12), EditTargets(mu_slope=-1.0), EditTargets(mu_slope=0.0),
+    EditTargets(mu_slope=-3.0, sigma2=50.0), EditTargets(mode="model", mu_slope=0.0, sigma2=1e-9),
+])
+def test_degenerate_sliders_give_finite_valid_tables(glossy, targets):
+    table, prof, fit = glossy
+    res = edit(table, targets, prof, fit, max_rounds=1)
+    assert np.isfinite(res.table.rho).all() and (res.table.rho >= 0).all()
+    assert np.isfinite(res.max_albedo).all()
+    # Sliders that were set are clamped to their ranges; an untouched one keeps the measurement.
+    if targets.mu_slope is not None:
+        assert -1.0 <= res.target_mu_slope <= 0.0
+    else:
+        assert res.target_mu_slope == fit["mu_slope"]
+    if targets.sigma2 is not None:
+        assert 0.0 < res.target_sigma2 <= math.pi ** 2 / 12
+
+
+def test_scale_to_albedo_brings_the_peak_to_one(glossy):
+    table, prof, fit = glossy
+    res = edit(table, EditTargets(strength=4.0), prof, fit, remeasure=False)
+    assert res.energy_gain and any("reflects more" in w for w in res.warnings)
+    fixed = scale_to_albedo(res)
+    assert fixed.max_albedo.max() == pytest.approx(1.0)
+    assert directional_albedo(fixed.table).max() == pytest.approx(1.0, rel=1e-6)
+
+
+def test_truncated_gaussian_solver_matches_its_targets():
+    mean_t = np.array([0.0, -0.5, -1.2])
+    var_t = np.array([0.3, 0.05, 0.02])
+    m, s, ok = solve_truncated(mean_t, var_t)
+    assert ok.all()
+    mt, vt = _trunc_moments(m, s)
+    np.testing.assert_allclose(mt, mean_t, atol=1e-7)
+    np.testing.assert_allclose(vt, var_t, rtol=1e-5)
+    from scipy.stats import truncnorm
+
+    a, b = (-math.pi / 2 - m[1]) / s[1], (math.pi / 2 - m[1]) / s[1]
+    assert truncnorm.mean(a, b, loc=m[1], scale=s[1]) == pytest.approx(-0.5, abs=1e-7)
