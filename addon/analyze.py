@@ -142,6 +142,31 @@ def safe_output_name(name: str) -> str:
     return cleaned or "material"
 
 
+def _plot_group(args):
+    from . import plots as P
+
+    group, profiles, fits, out_dir = args
+    if group == 0:
+        P.plot_set_profiles(profiles, out_dir)
+    else:
+        P.plot_fits(profiles, fits["materials"], os.path.join(out_dir, "fits.png"))
+        P.plot_energy_spline(profiles, fits["materials"], fits.get("joint"), os.path.join(out_dir, "energy_spline.png"))
+        P.plot_correlation(fits["materials"], fits.get("correlation"), os.path.join(out_dir, "correlation.png"))
+
+
+def _plot_all(profiles, fits, out_dir, workers):
+    """Two groups of plots of about equal cost, in two processes when there are two cores."""
+    jobs = [(g, profiles, fits, out_dir) for g in (0, 1)]
+    if (workers or os.cpu_count() or 1) > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("fork").Pool(2) as pool:
+            pool.map(_plot_group, jobs)
+    else:
+        for j in jobs:
+            _plot_group(j)
+
+
 def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print):
     """Profiles, fits, per-material JSON, summary CSV and plots for a set. Returns problems."""
     from .cli import write_json_atomic
@@ -168,7 +193,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print):
                           os.path.join(out_dir, "materials", safe_output_name(name) + ".json"))
     if not profiles:
         return problems
-    fits = fit_set(profiles) if len(profiles) > 1 else {"materials": per_fit}
+    fits = fit_set(profiles, materials=per_fit)
     write_json_atomic(fits, os.path.join(out_dir, "fits.json"))
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=SUMMARY_FIELDS)
@@ -177,12 +202,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print):
         writer.writerow({k: ("" if v is None else (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()})
     write_text_atomic(buf.getvalue(), os.path.join(out_dir, "summary.csv"))
     if plots:
-        from . import plots as P
-
-        P.plot_set_profiles(profiles, out_dir)
-        P.plot_fits(profiles, fits["materials"], os.path.join(out_dir, "fits.png"))
-        P.plot_energy_spline(profiles, fits["materials"], fits.get("joint"), os.path.join(out_dir, "energy_spline.png"))
-        P.plot_correlation(fits["materials"], fits.get("correlation"), os.path.join(out_dir, "correlation.png"))
+        _plot_all(profiles, fits, out_dir, workers)
     log(f"analysed {len(profiles)} material(s) in {time.perf_counter() - t0:.1f} s "
         f"(median {np.median(seconds):.2f} s each on one core); results in {out_dir}")
     return problems

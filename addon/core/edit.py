@@ -27,7 +27,7 @@ from scipy.special import erf
 
 from .fits import LAMBERT_VARIANCE, correlation_curve, fit_material
 from .geometry import HALF_PI, directions_from_half_diff, half_diff_from_directions, view_centred, view_centred_angles
-from .merl import MerlTable, cell_centres, cell_indices
+from .merl import MerlTable, cell_centres, cell_indices, cell_indices_view
 from .profiles import Profiles, compute_profiles, specular_values
 
 MODES = ("warp", "model")
@@ -163,33 +163,44 @@ class SliceSamples:
         return m0 / total, mt, (wk @ (tw - mt) ** 2) / m0, (wk @ (qw - mp) ** 2) / m0
 
 
-def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target, iters=30, tol=1e-7):
-    """Per view: (mu_new, k_theta, k_phi, kept fraction, reached?) so the clipped warp hits targets."""
+def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target):
+    """Per view: (mu_new, k_theta, k_phi, kept fraction), and whether the targets were reached.
+
+    A bounded least-squares solve on the clipped warp's moments. Plain fixed-point steps run
+    away where clipping puts a target out of reach (a wider lobe loses more mass, which
+    makes it narrower again), so the map stays within a factor 4 of the unclipped answer and
+    half a radian of the target mean, and the closest point is used.
+    """
+    from scipy.optimize import least_squares
+
     n = len(samples.theta_o)
     out = np.zeros((n, 4))
-    reached = np.ones(n, bool)
+    reached = np.zeros(n, bool)
     for k in range(n):
-        m, kt, kp = mu_target[k], math.sqrt(var_t_target[k] / max(samples.var_t[k], 1e-300)), \
-            math.sqrt(var_p_target[k] / max(samples.var_p[k], 1e-300))
-        frac = 1.0
-        ok = False
-        for _ in range(iters):
-            frac, mt, vt, vp = samples.warped_moments(k, m, kt, kp)
+        vt0, vp0 = max(samples.var_t[k], 1e-300), max(samples.var_p[k], 1e-300)
+        x0 = np.array([mu_target[k], 0.5 * math.log(var_t_target[k] / vt0), 0.5 * math.log(var_p_target[k] / vp0)])
+
+        def residual(x):
+            frac, mt, vt, vp = samples.warped_moments(k, x[0], math.exp(x[1]), math.exp(x[2]))
             if frac <= 0 or vt <= 0 or vp <= 0:
-                break
-            et = mu_target[k] - mt
-            if abs(et) < tol and abs(vt / var_t_target[k] - 1) < tol and abs(vp / var_p_target[k] - 1) < tol:
-                ok = True
-                break
-            m = float(np.clip(m + et, -2 * np.pi, 2 * np.pi))
-            kt = float(np.clip(kt * math.sqrt(var_t_target[k] / vt), 1e-6, 1e6))
-            kp = float(np.clip(kp * math.sqrt(var_p_target[k] / vp), 1e-6, 1e6))
+                return np.array([1e3, 1e3, 1e3])
+            # The mean is what the slope slider moves: it weighs most where not all can be met.
+            return np.array([(mt - mu_target[k]) / 0.002, math.log(vt / var_t_target[k]) / 0.02,
+                             math.log(vp / var_p_target[k]) / 0.02])
+
+        r0 = residual(x0)
+        if np.all(np.abs(r0) < 1e-4):
+            x = x0
         else:
-            frac, mt, vt, vp = samples.warped_moments(k, m, kt, kp)
-            ok = abs(mu_target[k] - mt) < 1e-3 and abs(vt / var_t_target[k] - 1) < 1e-2 \
-                and abs(vp / var_p_target[k] - 1) < 1e-2
-        out[k] = (m, kt, kp, max(frac, 1e-300))
-        reached[k] = ok
+            lo = x0 - np.array([0.5, math.log(4.0), math.log(4.0)])
+            hi = x0 + np.array([0.5, math.log(4.0), math.log(4.0)])
+            sol = least_squares(residual, x0, bounds=(lo, hi), diff_step=1e-4, xtol=1e-10, ftol=1e-10,
+                                max_nfev=60)
+            x = sol.x if np.sum(sol.fun ** 2) <= np.sum(r0 ** 2) else x0
+        r = residual(x)
+        frac = samples.warped_moments(k, x[0], math.exp(x[1]), math.exp(x[2]))[0]
+        out[k] = (x[0], math.exp(x[1]), math.exp(x[2]), max(frac, 0.25))  # gain capped at 4x
+        reached[k] = bool(abs(r[0]) < 2.5 and np.all(np.abs(r[1:]) < 0.5))  # 0.005 rad, 1 % variances
     return out, reached
 
 
@@ -244,12 +255,8 @@ def _view_frame(w_view, w_lit):
     return elev, theta, phi
 
 
-def _interp(theta_o, table_theta, values):
-    return np.interp(np.clip(theta_o, table_theta[0], table_theta[-1]), table_theta, values)
-
-
 def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, fit: dict | None = None,
-         remeasure: bool = True, progress=None, max_rounds: int = 3) -> EditResult:
+         remeasure: bool = True, progress=None, max_rounds: int = 5) -> EditResult:
     """Re-synthesize ``table`` for the slider ``targets``. Never modifies ``table``.
 
     The reciprocal symmetrization moves the moments (a lobe seen with the roles swapped sits
@@ -277,22 +284,37 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
         rho = np.where(table.valid, np.minimum(table.rho, kd[:, None]) + gain * spec, 0.0)
         return _finish(MerlTable(rho, table.valid.copy(), None), targets, mu_t, s2_t, warnings, prof, remeasure)
 
-    mu_s, s2_s = mu_t, s2_t
+    kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
+    values = specular_values(table, kd, prof.split)
+    samples = SliceSamples(values, prof) if targets.mode == "warp" else None
+    # Secant steps on the mean slope and on log(variance), each against its own error.
+    x = np.array([mu_t, math.log(s2_t)])
+    goal = np.array([mu_t, math.log(s2_t)])
+    prev = None
     best = None
     for round_ in range(max_rounds):
-        out, notes = synthesize(table, targets, prof, fit, mu_s, s2_s)
+        out, notes = synthesize(table, targets, prof, fit, x[0], math.exp(x[1]), values, samples)
         new_prof = compute_profiles(out, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split)
         f = fit_material(new_prof)
-        if f["mu_slope"] is None or f["sigma2"] is None:
+        if f["mu_slope"] is None or f["sigma2"] is None or f["sigma2"] <= 0:
             break
-        err_mu, err_s2 = f["mu_slope"] - mu_t, f["sigma2"] / s2_t - 1.0
-        score = abs(err_mu) / 0.01 + abs(err_s2) / 0.02
+        y = np.array([f["mu_slope"], math.log(f["sigma2"])])
+        err = y - goal
+        score = abs(err[0]) / 0.01 + abs(math.expm1(err[1])) / 0.02
         if best is None or score < best[0]:
             best = (score, out, notes, new_prof, f)
-        if abs(err_mu) < 0.005 and abs(err_s2) < 0.01:
+        if abs(err[0]) < 0.003 and abs(err[1]) < 0.006:
             break
-        mu_s = float(np.clip(mu_s - err_mu, -1.5, 0.5))
-        s2_s = float(np.clip(s2_s / (1.0 + err_s2), MIN_SIGMA2, LAMBERT_VARIANCE))
+        slope = np.ones(2)
+        if prev is not None:
+            dx, dy = x - prev[0], y - prev[1]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                sec = dy / dx
+            slope = np.where(np.isfinite(sec) & (np.abs(dx) > 1e-9) & (sec > 0.2) & (sec < 5.0), sec, 1.0)
+        prev = (x.copy(), y)
+        x = x - err / slope
+        x[0] = float(np.clip(x[0], -1.6, 0.6))
+        x[1] = float(np.clip(x[1], math.log(MIN_SIGMA2), math.log(LAMBERT_VARIANCE)))
         if progress:
             progress(round_ + 1, max_rounds)
     if best is None:
@@ -307,16 +329,20 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     return res
 
 
-def synthesize(table, targets, prof, fit, mu_s, s2_s):
-    """One tabulation for synthesis targets (mean slope, average variance); returns (table, notes)."""
+def synthesize(table, targets, prof, fit, mu_s, s2_s, values=None, samples=None):
+    """One tabulation for synthesis targets (mean slope, average variance); returns (table, notes).
+
+    ``values``/``samples`` (the specular table and its slice samples) may be passed in so
+    that correction rounds do not recompute them."""
     notes = []
     theta = np.asarray(prof.theta_o, float)
     kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
-    values = specular_values(table, kd, prof.split)
+    if values is None:
+        values = specular_values(table, kd, prof.split)
     alpha_new = target_energy(prof, fit, targets)  # (views, 3)
     p = prof["avg"]
     if targets.mode == "warp":
-        samples = SliceSamples(values, prof)
+        samples = samples or SliceSamples(values, prof)
         deviation = np.nan_to_num(np.asarray(p["mu_theta"], float)) - fit["mu_slope"] * theta
         ratio = s2_s / fit["sigma2"]
         # The node sampling is coarser than the profile integrator: express the targets as
@@ -336,19 +362,17 @@ def synthesize(table, targets, prof, fit, mu_s, s2_s):
             gain = np.where(alpha_old > 1e-12 * max(alpha_old.max(), 1e-300),
                             alpha_new / (alpha_old * np.maximum(params[:, 3:4], 1e-3)), 0.0)
 
-        def evaluate(elev, th, ph):
-            mu0 = _interp(elev, theta, samples.mu)
-            m = _interp(elev, theta, params[:, 0])
-            kt = _interp(elev, theta, params[:, 1])
-            kp = _interp(elev, theta, params[:, 2])
-            src_t = mu0 + (th - m) / kt
-            src_p = ph / kp
+        def evaluate(side, sel):
+            kt = side.interp(params[:, 1], sel)
+            kp = side.interp(params[:, 2], sel)
+            src_t = side.interp(samples.mu, sel) + (side.theta[sel] - side.interp(params[:, 0], sel)) / kt
+            src_p = side.phi[sel] / kp
             inside = (np.abs(src_t) <= HALF_PI) & (np.abs(src_p) <= HALF_PI)
-            wi = view_centred(np.clip(src_t, -HALF_PI, HALF_PI), np.clip(src_p, -HALF_PI, HALF_PI))
-            wo = view_centred(elev, 0.0 * elev)
-            v = values[cell_indices(*half_diff_from_directions(wi, wo)), :3] * inside[:, None]
-            g = np.stack([_interp(elev, theta, gain[:, c]) for c in range(3)], axis=1)
-            return v * g / (kt * kp)[:, None]
+            cells = cell_indices_view(np.clip(src_t, -HALF_PI, HALF_PI), np.clip(src_p, -HALF_PI, HALF_PI),
+                                      side.sin_e[sel], side.cos_e[sel])
+            scale = inside / (kt * kp)
+            return np.stack([values[cells, c] * side.interp(gain[:, c], sel) * scale for c in range(3)])
+
     else:
         m, s, ok = solve_truncated(mu_s * theta, np.full_like(theta, s2_s))
         m_p, s_p, ok_p = solve_truncated(np.zeros(1), np.array([s2_s]))
@@ -356,46 +380,60 @@ def synthesize(table, targets, prof, fit, mu_s, s2_s):
             notes.append("model: no truncated Gaussian has the target mean and variance at "
                          f"{int((~ok).sum())} view(s); the nearest reachable lobe is used")
 
-        def evaluate(elev, th, ph):
-            mm = _interp(elev, theta, m)
-            ss = _interp(elev, theta, s)
-            g = _truncated_gauss(th, mm, ss) * _truncated_gauss(ph, m_p[0], s_p[0])
-            a = np.stack([_interp(elev, theta, alpha_new[:, c]) for c in range(3)], axis=1)
-            return a * g[:, None]
+        def evaluate(side, sel):
+            g = _truncated_gauss(side.theta[sel], side.interp(m, sel), side.interp(s, sel)) \
+                * _truncated_gauss(side.phi[sel], m_p[0], s_p[0])
+            return np.stack([side.interp(alpha_new[:, c], sel) * g for c in range(3)])
 
-    return _tabulate(table, evaluate, kd), notes
+    return _tabulate(table, evaluate, kd, theta), notes
 
 
 _PAIR_GEOMETRY = {}
 
 
-def _pair_geometry():
-    """Per cell: the view-frame angles of each direction seen from the other (cached).
+class _Side:
+    """One orientation of every cell: the view's elevation and the lit direction's
+    view-centred angles, plus interpolation weights into the profile's view grid."""
 
-    Material independent; 1.46 M cells x 6 float32 = 35 MB, computed once per process.
-    """
+    def __init__(self, elev, theta, phi):
+        self.elev, self.theta, self.phi = elev, theta, phi
+        self.sin_e, self.cos_e = np.sin(elev), np.cos(elev)
+        self.grid = None
+
+    def weights(self, grid):
+        if self.grid is None or len(self.grid) != len(grid) or np.any(self.grid != grid):
+            e = np.clip(self.elev, grid[0], grid[-1])
+            i = np.clip(np.searchsorted(grid, e, side="right") - 1, 0, max(len(grid) - 2, 0))
+            span = np.diff(grid)[i] if len(grid) > 1 else np.ones_like(e)
+            self.i = i
+            self.f = np.clip((e - grid[i]) / np.where(span > 0, span, 1.0), 0.0, 1.0) if len(grid) > 1 else 0 * e
+            self.grid = np.array(grid)
+        return self
+
+    def interp(self, values, sel):
+        v = np.asarray(values, float)
+        if len(v) == 1:
+            return np.full(len(sel), v[0])
+        i, f = self.i[sel], self.f[sel]
+        return v[i] + f * (v[i + 1] - v[i])
+
+
+def _pair_geometry():
+    """Per cell, both orientations (cached; material independent, computed once)."""
     if "g" not in _PAIR_GEOMETRY:
         th, td, pd = cell_centres()
         wi, wo = directions_from_half_diff(th, td, pd)
         above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-        a = _view_frame(wo, wi)  # w_o as the view
-        b = _view_frame(wi, wo)  # w_i as the view
-        _PAIR_GEOMETRY["g"] = (above, *(np.asarray(x, np.float32) for x in a + b))
+        _PAIR_GEOMETRY["g"] = (above, _Side(*_view_frame(wo, wi)), _Side(*_view_frame(wi, wo)))
     return _PAIR_GEOMETRY["g"]
 
 
-def _tabulate(table, evaluate, kd, progress=None, chunk=1 << 18):
-    above, ae, at, ap, be, bt, bp = _pair_geometry()
+def _tabulate(table, evaluate, kd, grid):
+    above, side_a, side_b = _pair_geometry()
+    active = np.flatnonzero(above & table.valid.any(axis=0))  # missing cells stay missing: skip them
+    v = 0.5 * (evaluate(side_a.weights(grid), active) + evaluate(side_b.weights(grid), active))
     rho = np.zeros_like(table.rho)
-    n = above.size
-    for start in range(0, n, chunk):
-        sl = slice(start, min(n, start + chunk))
-        f = np.float64
-        v = 0.5 * (evaluate(ae[sl].astype(f), at[sl].astype(f), ap[sl].astype(f))
-                   + evaluate(be[sl].astype(f), bt[sl].astype(f), bp[sl].astype(f)))
-        rho[:, sl] = np.where(above[sl, None], v, 0.0).T
-        if progress:
-            progress(sl.stop, n)
+    rho[:, active] = v
     rho += kd[:, None]
     valid = table.valid.copy()
     rho = np.where(valid, rho, 0.0)

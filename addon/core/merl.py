@@ -66,19 +66,23 @@ def read_merl(path) -> MerlTable:
     try:
         size = os.path.getsize(path)
         with open(path, "rb") as fh:
-            raw = fh.read(FILE_BYTES + 1)
+            header = fh.read(HEADER_BYTES)
+            if size < HEADER_BYTES:
+                raise MerlError(path, f"file too short for a MERL header ({size} bytes, need {FILE_BYTES})")
+            dims = tuple(int(v) for v in np.frombuffer(header, dtype="<i4"))
+            if dims != SHAPE:
+                raise MerlError(path, f"wrong header {dims}, expected {SHAPE} (not a MERL isotropic BRDF?)")
+            if size != FILE_BYTES:
+                kind = "truncated" if size < FILE_BYTES else "oversized"
+                raise MerlError(path, f"{kind}: {size} bytes, a MERL file has exactly {FILE_BYTES}")
+            # Read straight into the array: no intermediate 35 MB bytes object.
+            stored = np.empty(3 * N_CELLS, dtype="<f8")
+            got = fh.readinto(memoryview(stored).cast("B"))
     except OSError as exc:
         raise MerlError(path, f"cannot read file ({exc.strerror or exc})") from None
-    if size < HEADER_BYTES:
-        raise MerlError(path, f"file too short for a MERL header ({size} bytes, need {FILE_BYTES})")
-    dims = tuple(int(v) for v in np.frombuffer(raw[:HEADER_BYTES], dtype="<i4"))
-    if dims != SHAPE:
-        raise MerlError(path, f"wrong header {dims}, expected {SHAPE} (not a MERL isotropic BRDF?)")
-    if size != FILE_BYTES:
-        kind = "truncated" if size < FILE_BYTES else "oversized"
-        raise MerlError(path, f"{kind}: {size} bytes, a MERL file has exactly {FILE_BYTES}")
-    stored = np.frombuffer(raw[HEADER_BYTES:], dtype="<f8").reshape(3, N_CELLS)
-    return table_from_stored(stored, path)
+    if got != 3 * N_CELLS * 8:
+        raise MerlError(path, f"truncated while reading ({got + HEADER_BYTES} bytes)")
+    return table_from_stored(stored.reshape(3, N_CELLS), path)
 
 
 def table_from_stored(stored: np.ndarray, path=None) -> MerlTable:
@@ -90,7 +94,8 @@ def table_from_stored(stored: np.ndarray, path=None) -> MerlTable:
         count = int((~finite).sum())
         raise MerlError(path, f"{count} non-finite value(s) ({kind} first at channel {bad[0]}, cell {bad[1]})")
     valid = stored >= 0.0
-    rho = np.where(valid, stored, 0.0) * CHANNEL_SCALES[:, None]
+    rho = stored * CHANNEL_SCALES[:, None]
+    rho[~valid] = 0.0
     if not np.isfinite(rho).all():
         raise MerlError(path, "values overflow when scaled to reflectance")
     return MerlTable(rho, valid, path)
@@ -139,6 +144,25 @@ def cell_indices(theta_h, theta_d, phi_d):
     pd = np.where(phi_d < 0.0, phi_d + np.pi, phi_d)
     ipd = np.clip(np.floor(pd / np.pi * RES_PD), 0, RES_PD - 1).astype(np.int64)
     return ipd + RES_PD * (itd + RES_TD * ith)
+
+
+def cell_indices_view(theta, phi, sin_e, cos_e):
+    """Nearest cell for w_i = m(theta, phi) seen from w_o = (sin e, 0, cos e): a direct form.
+
+    Same cells as ``cell_indices(*half_diff_from_directions(...))`` with a third of the work:
+    cos(theta_d) = w_i . h, and phi_d from one atan2 of h's components (no rotations).
+    """
+    ct, st = np.cos(theta), np.sin(theta)
+    cp, sp = np.cos(phi), np.sin(phi)
+    ix, iy, iz = st * cp, sp, ct * cp
+    hx, hy, hz = ix + sin_e, iy, iz + cos_e
+    n = np.sqrt(hx * hx + hy * hy + hz * hz)
+    n = np.where(n > 0.0, n, 1.0)
+    theta_h = np.arccos(np.clip(hz / n, -1.0, 1.0))
+    theta_d = np.arccos(np.clip((ix * hx + iy * hy + iz * hz) / n, -1.0, 1.0))
+    rho2 = hx * hx + hy * hy
+    phi_d = np.arctan2(n * (hx * iy - hy * ix), hz * (hx * ix + hy * iy) - rho2 * iz)
+    return cell_indices(theta_h, theta_d, phi_d)
 
 
 def cell_centres():
