@@ -181,12 +181,19 @@ def plot_fits(profiles, fits, path, channel="avg"):
             ax.set_xlabel("view elevation θo (degrees)")
             ax.set_ylabel(unit)
             ax.grid(alpha=0.3)
-        mae = [fits[n][key]["mae"] for n in names]
-        rmse = [fits[n][key]["rmse"] for n in names]
+        mae = np.array([fits[n][key]["mae"] for n in names])
+        rmse = np.array([fits[n][key]["rmse"] for n in names])
         x = np.arange(len(names))
-        ax_e.bar(x - 0.2, mae, 0.4, color="#1f77b4", label="MAE")
-        ax_e.bar(x + 0.2, rmse, 0.4, color="#9467bd", label="RMSE")
-        ax_e.set_xticks(x, names, rotation=90, fontsize=6 if len(names) > 20 else 8)
+        if len(names) <= 30:
+            ax_e.bar(x - 0.2, mae, 0.4, color="#1f77b4", label="MAE")
+            ax_e.bar(x + 0.2, rmse, 0.4, color="#9467bd", label="RMSE")
+            ax_e.set_xticks(x, names, rotation=90, fontsize=6 if len(names) > 20 else 8)
+        else:
+            # Too many names to read: errors against rank (the insets name best/middle/worst).
+            order = np.argsort(rmse)
+            ax_e.plot(x, mae[order], ".", color="#1f77b4", label="MAE")
+            ax_e.plot(x, rmse[order], ".", color="#9467bd", label="RMSE")
+            ax_e.set_xlabel("materials, ranked by RMSE")
         ax_e.set_title(f"{title}: fit errors")
         ax_e.set_ylabel(unit)
         ax_e.legend(fontsize=8)
