@@ -90,3 +90,45 @@ def test_edit_without_sliders_copies_values_and_never_overwrites(tmp_path):
     assert hashlib.sha256(open(src, "rb").read()).hexdigest() == digest
     res = run("edit", src, "--out", str(tmp_path / "x.binary"), "--alpha", "1,2")
     assert res.returncode == 2 and "three finite numbers" in res.stderr
+
+
+def test_fit_command_writes_the_spec_shape(tmp_path):
+    import samples
+
+    out = tmp_path / "fits.json"
+    res = run("fit", samples.sample_path("gold"), samples.sample_path("ggx_rough"), "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    data = json.loads(out.read_text())
+    assert set(data) == {"materials", "joint", "correlation"}
+    for name in ("gold", "ggx_rough"):
+        f = data["materials"][name]
+        for k in ("alpha_b", "theta0", "theta1", "alpha1", "m1", "mu_slope", "sigma2"):
+            assert isinstance(f[k], float)
+        for k in ("energy", "mean", "variance"):
+            assert set(f[k]) == {"mae", "rmse"}
+        assert 0 <= f["theta0"] < f["theta1"] <= 1.5707963267948966
+    assert {"theta0", "theta1"} <= set(data["joint"]) and {"a", "b", "c"} <= set(data["correlation"])
+
+
+def test_fit_and_analyze_report_bad_files_with_exit_2(tmp_path):
+    import shutil
+
+    import samples
+
+    bad = tmp_path / "set" / "broken.binary"
+    bad.parent.mkdir()
+    bad.write_bytes(b"not a brdf at all")
+    res = run("fit", str(bad), "--out", str(tmp_path / "f.json"))
+    assert res.returncode == 2 and "broken.binary" in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "f.json").exists()
+    shutil.copy(samples.sample_path("gold"), tmp_path / "set" / "gold.binary")
+    out = tmp_path / "results"
+    res = run("analyze", str(tmp_path / "set"), "--out", str(out), "--no-plots")
+    assert res.returncode == 2
+    assert "broken.binary" in res.stderr and "wrong header" in res.stderr and "Traceback" not in res.stderr
+    assert (out / "materials" / "gold.json").exists() and (out / "summary.csv").exists()
+    assert "gold" in (out / "summary.csv").read_text()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    res = run("analyze", str(empty), "--out", str(tmp_path / "r2"))
+    assert res.returncode == 2 and "no .binary files" in res.stderr

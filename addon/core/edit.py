@@ -451,8 +451,8 @@ def directional_albedo(table: MerlTable, views=None) -> np.ndarray:
     full = np.where(table.valid, table.rho, 0.0).T
     out = np.empty((len(views), 3))
     for k in range(len(views)):
-        cells, w = op.view(k)
-        out[k] = full[cells].T @ np.asarray(w[:, -1], dtype=float)
+        cells, w = op.albedo_view(k)
+        out[k] = full[cells].T @ np.asarray(w, dtype=float)
     return out
 
 

@@ -25,8 +25,7 @@ from .merl import N_CELLS, cell_indices
 from .moments import exponents, monomials, n_monomials
 from .quadrature import RuleParams, graded_tensor_rule, slice_rule
 
-OPERATOR_VERSION = 4
-N_COLUMNS = 16  # the 15 monomials, then the directional-albedo weight cos(theta) cos(phi)^2
+OPERATOR_VERSION = 5
 MAX_ORDER = 4
 
 
@@ -56,11 +55,16 @@ class SliceOperator:
     theta_o: np.ndarray
     offsets: np.ndarray
     cells: np.ndarray
-    weights: np.ndarray  # (total, 16) float32: 15 monomials, then the albedo weight
+    weights: np.ndarray  # (total, 15) float32, contiguous (a strided slice would be copied per view)
+    albedo: np.ndarray   # (total,) float32: integral of cos(theta_i) dw_i over each cell's part
 
     def view(self, k):
         a, b = self.offsets[k], self.offsets[k + 1]
         return self.cells[a:b], self.weights[a:b]
+
+    def albedo_view(self, k):
+        a, b = self.offsets[k], self.offsets[k + 1]
+        return self.cells[a:b], self.albedo[a:b]
 
     @property
     def centres(self):
@@ -72,7 +76,7 @@ def _build_view(theta_o, params):
     cells = cell_indices(rule.theta_h, rule.theta_d, rule.phi_d)
     uniq, inv = np.unique(cells, return_inverse=True)
     x = rule.theta + theta_o
-    agg = np.empty((len(uniq), N_COLUMNS), dtype=np.float32)
+    agg = np.empty((len(uniq), n_monomials(MAX_ORDER)), dtype=np.float32)
     # One monomial at a time: materialising all 15 for ~600k nodes would dominate the peak.
     xp = rule.weight.copy()
     for n in range(MAX_ORDER + 1):
@@ -82,28 +86,28 @@ def _build_view(theta_o, params):
             wp *= rule.phi
         xp *= x
     # cos(theta_i) dw = cos(theta) cos(phi) * cos(phi) dtheta dphi: albedo from the same cells.
-    agg[:, -1] = np.bincount(inv, weights=rule.weight * np.cos(rule.theta) * np.cos(rule.phi) ** 2,
-                             minlength=len(uniq))
-    return uniq.astype(np.int32), agg
+    alb = np.bincount(inv, weights=rule.weight * np.cos(rule.theta) * np.cos(rule.phi) ** 2, minlength=len(uniq))
+    return uniq.astype(np.int32), agg, alb.astype(np.float32)
 
 
 def _build_chunks(theta_o, params, progress):
-    cells, weights = [], []
+    cells, weights, albedo = [], [], []
     for k, t in enumerate(theta_o):
-        c, w = _build_view(float(t), params)
+        c, w, a = _build_view(float(t), params)
         cells.append(c)
         weights.append(w)
+        albedo.append(a)
         if progress:
             progress(k + 1, len(theta_o))
     offsets = np.concatenate(([0], np.cumsum([len(c) for c in cells]))).astype(np.int64)
-    return cells, weights, offsets
+    return cells, weights, albedo, offsets
 
 
 def build_operator(theta_o, params: RuleParams = RuleParams(), progress=None) -> SliceOperator:
     """Build in memory (no cache). ``get_operator`` is the cached, lower-peak-memory path."""
     theta_o = np.asarray(theta_o, dtype=float)
-    cells, weights, offsets = _build_chunks(theta_o, params, progress)
-    return SliceOperator(theta_o, offsets, np.concatenate(cells), np.concatenate(weights))
+    cells, weights, albedo, offsets = _build_chunks(theta_o, params, progress)
+    return SliceOperator(theta_o, offsets, np.concatenate(cells), np.concatenate(weights), np.concatenate(albedo))
 
 
 def _operator_key(theta_o, params):
@@ -131,14 +135,15 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
     if os.path.isdir(folder):
         op = _load_operator(folder)
     if op is None:
-        cells, weights, offsets = _build_chunks(theta_o, params, progress)
+        cells, weights, albedo, offsets = _build_chunks(theta_o, params, progress)
         # Stream the chunks into the cache and map them back: concatenating in memory would
         # hold the operator twice at the peak.
-        if _save_operator(theta_o, offsets, cells, weights, folder):
+        if _save_operator(theta_o, offsets, cells, weights, albedo, folder):
             op = _load_operator(folder)
         if op is None:
-            op = SliceOperator(theta_o, offsets, np.concatenate(cells), np.concatenate(weights))
-        del cells, weights
+            op = SliceOperator(theta_o, offsets, np.concatenate(cells), np.concatenate(weights),
+                               np.concatenate(albedo))
+        del cells, weights, albedo
     if not memo:
         _SMALL[key] = op
     else:
@@ -152,11 +157,12 @@ def _load_operator(folder):
         op = SliceOperator(np.load(os.path.join(folder, "theta_o.npy")),
                            np.load(os.path.join(folder, "offsets.npy")),
                            np.load(os.path.join(folder, "cells.npy"), mmap_mode="r"),
-                           np.load(os.path.join(folder, "weights.npy"), mmap_mode="r"))
+                           np.load(os.path.join(folder, "weights.npy"), mmap_mode="r"),
+                           np.load(os.path.join(folder, "albedo.npy"), mmap_mode="r"))
     except (OSError, ValueError, EOFError):
         return None  # a damaged cache is rebuilt, never trusted
     n = int(op.offsets[-1])
-    if op.cells.shape != (n,) or op.weights.shape != (n, N_COLUMNS):
+    if op.cells.shape != (n,) or op.weights.shape != (n, n_monomials(MAX_ORDER)) or op.albedo.shape != (n,):
         return None
     return op
 
@@ -169,7 +175,7 @@ def _write_npy_chunks(path, chunks, dtype, shape):
             fh.write(np.ascontiguousarray(c, dtype=dtype).tobytes())
 
 
-def _save_operator(theta_o, offsets, cells, weights, folder) -> bool:
+def _save_operator(theta_o, offsets, cells, weights, albedo, folder) -> bool:
     """Write the cache folder atomically (temp folder, then rename). False if unwritable."""
     parent = os.path.dirname(folder)
     try:
@@ -182,7 +188,8 @@ def _save_operator(theta_o, offsets, cells, weights, folder) -> bool:
         np.save(os.path.join(tmp, "theta_o.npy"), theta_o)
         np.save(os.path.join(tmp, "offsets.npy"), offsets)
         _write_npy_chunks(os.path.join(tmp, "cells.npy"), cells, np.int32, (n,))
-        _write_npy_chunks(os.path.join(tmp, "weights.npy"), weights, np.float32, (n, N_COLUMNS))
+        _write_npy_chunks(os.path.join(tmp, "weights.npy"), weights, np.float32, (n, n_monomials(MAX_ORDER)))
+        _write_npy_chunks(os.path.join(tmp, "albedo.npy"), albedo, np.float32, (n,))
         if os.path.isdir(folder):  # another process won the race; keep theirs
             shutil.rmtree(tmp, ignore_errors=True)
         else:
