@@ -216,3 +216,25 @@ def test_profiles_json_round_trip(sample_table, views):
     for ch in ("r", "g", "b", "avg"):
         for k, v in prof[ch].items():
             np.testing.assert_array_equal(back[ch][k], v)
+
+
+def test_average_channel_with_mixed_missing_masks_uses_only_cells_valid_everywhere(sample_table):
+    # One channel loses a block of cells: the average must then skip those cells (the
+    # four-column path), and with equal masks the linear shortcut must agree with it.
+    base = sample_table("gold")
+    views = np.radians([20.0, 50.0])
+    same = compute_profiles(base, views)
+    spec = specular_values(base, same.kd)
+    op = get_operator(views)
+    four = profiles_from_sums(table_sums(op, spec), -views[:, None])
+    np.testing.assert_allclose(same["avg"]["alpha"], four["alpha"][:, 3], rtol=1e-5)
+    np.testing.assert_allclose(same["avg"]["sigma_tt"], four["sigma_tt"][:, 3], rtol=1e-5)
+    holes = base.copy()
+    holes.valid[1, ::7] = False
+    holes.rho[1, ::7] = 0.0
+    mixed = compute_profiles(holes, views, kd=same.kd)
+    spec_h = specular_values(holes, same.kd)
+    assert np.all(spec_h[::7, 3] == 0.0)
+    want = profiles_from_sums(table_sums(op, spec_h), -views[:, None])
+    np.testing.assert_allclose(mixed["avg"]["alpha"], want["alpha"][:, 3], rtol=1e-5)
+    assert np.all(mixed["avg"]["alpha"] < same["avg"]["alpha"])
