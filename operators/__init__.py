@@ -1,0 +1,1 @@
+"""Operators, one per file; ``addon.registration`` registers them."""
