@@ -86,5 +86,6 @@ def test_bad_file_is_reported_not_raised_as_traceback(fresh, tmp_path):
 def test_load_registers_an_undo_step(fresh):
     # ed.undo itself needs a window, which the bpy module has not; what makes Blender push an
     # undo step for an operator is its UNDO flag, checked here on the registered type.
-    op = fresh.types.BRDFMOMENTS_OT_load_merl
+    op = sys.modules["bl_ext.bmtest.brdf_moments.operators.load_merl"].BRDFMOMENTS_OT_load_merl
+    assert op.is_registered
     assert "UNDO" in op.bl_options and "REGISTER" in op.bl_options
