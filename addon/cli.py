@@ -10,7 +10,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 
 
 class InputError(Exception):
@@ -38,23 +37,12 @@ def _elevation(text):
 
 
 def write_json_atomic(data, path):
-    """Write JSON through a temporary file in the same folder; no NaN can get in."""
-    path = os.path.abspath(path)
-    folder = os.path.dirname(path)
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=folder)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, allow_nan=False)
-            fh.write("\n")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    """Write JSON atomically; ``allow_nan=False`` means no NaN can get in."""
+    from .core.atomic import atomic_path
+
+    with atomic_path(path, ".json") as tmp, open(tmp, "w") as fh:
+        json.dump(data, fh, allow_nan=False)
+        fh.write("\n")
 
 
 def _progress(label, always=False):

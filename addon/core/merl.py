@@ -8,11 +8,11 @@ multiplied on read by per-channel scales. Negative stored values mark missing ce
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass
 
 import numpy as np
 
+from .atomic import atomic_path
 from .geometry import HALF_PI, half_diff_from_directions
 
 RES_TH, RES_TD, RES_PD = 90, 90, 180
@@ -114,22 +114,11 @@ def write_merl(table: MerlTable, path, *, source=None) -> None:
     if not (np.isfinite(table.rho).all()):
         raise MerlError(path, "refusing to write non-finite values")
     stored = np.where(table.valid, table.rho / CHANNEL_SCALES[:, None], -1.0)
-    folder = os.path.dirname(path) or "."
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".binary", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(np.asarray(SHAPE, dtype="<i4").tobytes())
-            fh.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600; an exported table should read like any file
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_path(path, ".binary") as tmp, open(tmp, "wb") as fh:
+        fh.write(np.asarray(SHAPE, dtype="<i4").tobytes())
+        fh.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())
+        fh.flush()
+        os.fsync(fh.fileno())
 
 
 # --- lookup -----------------------------------------------------------------------------
