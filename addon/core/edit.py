@@ -23,11 +23,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import erf
+from scipy.special import log_ndtr
 
 from .fits import LAMBERT_VARIANCE, correlation_curve, fit_material
-from .geometry import HALF_PI, directions_from_half_diff, half_diff_from_directions, view_centred, view_centred_angles
-from .merl import MerlTable, cell_centres, cell_indices, cell_indices_view
+from .geometry import HALF_PI, directions_from_half_diff, view_centred_angles
+from .merl import MerlTable, cell_centres, cell_indices_view
 from .profiles import Profiles, compute_profiles, specular_values
 
 MODES = ("warp", "model")
@@ -115,106 +115,143 @@ def target_energy(prof: Profiles, fit: dict, t: EditTargets) -> np.ndarray:
 
 # --- warp mode -------------------------------------------------------------------------------
 
-def _graded_nodes(centre, scale, n_panels=40, n_gauss=4, ratio=1.35):
-    """Gauss nodes on [-pi/2, pi/2], panels growing geometrically away from ``centre``."""
+def _graded_nodes(centre, scale, n_gauss=3, ratio=1.35):
+    """Gauss nodes on [-pi/2, pi/2], panels growing geometrically away from ``centre``.
+
+    The finest panel is capped at 0.03 rad so that broad lobes still resolve the table's
+    1-degree cells and the clipping edges."""
     from .quadrature import graded_edges
 
-    e = graded_edges(centre, -HALF_PI, HALF_PI, max(scale, 1e-6) / 4.0, ratio)
+    e = graded_edges(centre, -HALF_PI, HALF_PI, min(max(scale, 1e-6) / 4.0, 0.03), ratio)
     xg, wg = np.polynomial.legendre.leggauss(n_gauss)
     half = 0.5 * np.diff(e)
     mid = 0.5 * (e[1:] + e[:-1])
     return (mid[:, None] + half[:, None] * xg).ravel(), (half[:, None] * wg).ravel()
 
 
+def _padded(rows):
+    """Stack ragged (nodes, weights) rows into arrays; padding has weight 0."""
+    n = max(len(r[0]) for r in rows)
+    x = np.zeros((len(rows), n))
+    w = np.zeros((len(rows), n))
+    for k, (xs, ws) in enumerate(rows):
+        x[k, :len(xs)], w[k, :len(ws)] = xs, ws
+    return x, w
+
+
 class SliceSamples:
-    """The measured specular slices on per-view nodes graded around each lobe (avg channel)."""
+    """The measured specular slices (avg channel) on per-view tensor nodes graded around each lobe.
+
+    A warp's clipping is a rectangle cut in the original slice's coordinates, so the moments
+    of a clipped warped slice are two matrix-vector products per view: every view is solved
+    at once."""
 
     def __init__(self, values, prof: Profiles):
-        self.values = values
         self.theta_o = np.asarray(prof.theta_o, float)
         p = prof["avg"]
         self.mu = np.nan_to_num(np.asarray(p["mu_theta"], float), nan=0.0)
-        self.var_t = np.nan_to_num(np.asarray(p["sigma_tt"], float), nan=LAMBERT_VARIANCE)
-        self.var_p = np.nan_to_num(np.asarray(p["sigma_pp"], float), nan=LAMBERT_VARIANCE)
-        nodes = []
-        for k, to in enumerate(self.theta_o):
-            t, wt = _graded_nodes(self.mu[k], math.sqrt(max(self.var_t[k], 1e-12)))
-            q, wq = _graded_nodes(0.0, math.sqrt(max(self.var_p[k], 1e-12)))
-            T, Q = np.meshgrid(t, q, indexing="ij")
-            wi = view_centred(T, Q)
-            wo = np.broadcast_to(view_centred(to, 0.0), wi.shape)
-            rho = values[cell_indices(*half_diff_from_directions(wi, wo)), 3]
-            nodes.append((T.ravel(), Q.ravel(), (np.outer(wt, wq) * rho).ravel()))
-        self.nodes = nodes
+        var_t = np.nan_to_num(np.asarray(p["sigma_tt"], float), nan=LAMBERT_VARIANCE)
+        var_p = np.nan_to_num(np.asarray(p["sigma_pp"], float), nan=LAMBERT_VARIANCE)
+        self.t, wt = _padded([_graded_nodes(m, math.sqrt(max(v, 1e-12))) for m, v in zip(self.mu, var_t)])
+        self.q, wq = _padded([_graded_nodes(0.0, math.sqrt(max(v, 1e-12))) for v in var_p])
+        nv, nt, nq = len(self.theta_o), self.t.shape[1], self.q.shape[1]
+        T = np.broadcast_to(self.t[:, :, None], (nv, nt, nq))
+        Q = np.broadcast_to(self.q[:, None, :], (nv, nt, nq))
+        e = np.broadcast_to(self.theta_o[:, None, None], (nv, nt, nq))
+        rho = values[cell_indices_view(T, Q, np.sin(e), np.cos(e)), 3]
+        self.W = wt[:, :, None] * wq[:, None, :] * rho
+        self.total = self.W.sum(axis=(1, 2))
+        _, self.base_mean, self.base_var_t, self.base_var_p = self.moments(self.mu, 1.0, 1.0)
 
-    def warped_moments(self, k, mu_new, k_t, k_p):
-        """alpha fraction kept, mean, var_theta, var_phi of the clipped warped slice at view k."""
-        t, q, w = self.nodes[k]
-        tw = mu_new + k_t * (t - self.mu[k])
-        qw = k_p * q
-        keep = (np.abs(tw) <= HALF_PI) & (np.abs(qw) <= HALF_PI)
-        wk = w * keep
-        m0 = wk.sum()
-        total = w.sum()
-        if m0 <= 0 or total <= 0:
-            return 0.0, mu_new, 0.0, 0.0
-        mt = (wk @ tw) / m0
-        mp = (wk @ qw) / m0
-        return m0 / total, mt, (wk @ (tw - mt) ** 2) / m0, (wk @ (qw - mp) ** 2) / m0
+    def moments(self, mu_new, k_t, k_p):
+        """Per view: kept mass fraction, mean, var_theta, var_phi of the clipped warped slice."""
+        shape = self.theta_o.shape
+        mu_new, k_t, k_p = (np.broadcast_to(np.asarray(a, float), shape)[:, None] for a in (mu_new, k_t, k_p))
+        tw = mu_new + k_t * (self.t - self.mu[:, None])
+        qw = k_p * self.q
+        a = (np.abs(tw) <= HALF_PI).astype(float)
+        b = (np.abs(qw) <= HALF_PI).astype(float)
+        wt = a * np.einsum("vij,vj->vi", self.W, b)   # theta marginal of the kept rectangle
+        wq = b * np.einsum("vij,vi->vj", self.W, a)   # phi marginal
+        m0 = wt.sum(axis=1)
+        ok = (m0 > 0) & (self.total > 0)
+        m0s = np.where(ok, m0, 1.0)
+        mt = (wt * tw).sum(axis=1) / m0s
+        mp = (wq * qw).sum(axis=1) / m0s
+        vt = (wt * (tw - mt[:, None]) ** 2).sum(axis=1) / m0s
+        vp = (wq * (qw - mp[:, None]) ** 2).sum(axis=1) / m0s
+        frac = np.where(ok, m0 / np.where(self.total > 0, self.total, 1.0), 0.0)
+        return frac, np.where(ok, mt, mu_new[:, 0]), np.where(ok, vt, 0.0), np.where(ok, vp, 0.0)
 
 
-def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target):
+def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target, iters=40):
     """Per view: (mu_new, k_theta, k_phi, kept fraction), and whether the targets were reached.
 
-    A bounded least-squares solve on the clipped warp's moments. Plain fixed-point steps run
-    away where clipping puts a target out of reach (a wider lobe loses more mass, which
-    makes it narrower again), so the map stays within a factor 4 of the unclipped answer and
-    half a radian of the target mean, and the closest point is used.
+    Fixed-point steps on the clipped warp's moments, all views at once, starting from the
+    unclipped answer (so targets equal to the measured moments give the identity map). Where
+    clipping puts a target out of reach the steps run away (a wider lobe loses more mass,
+    which makes it narrower again), so the map stays within a factor 4 of the unclipped
+    answer and half a radian of it, and each view keeps its closest iterate.
     """
-    from scipy.optimize import least_squares
-
-    n = len(samples.theta_o)
-    out = np.zeros((n, 4))
-    reached = np.zeros(n, bool)
-    for k in range(n):
-        vt0, vp0 = max(samples.var_t[k], 1e-300), max(samples.var_p[k], 1e-300)
-        x0 = np.array([mu_target[k], 0.5 * math.log(var_t_target[k] / vt0), 0.5 * math.log(var_p_target[k] / vp0)])
-
-        def residual(x):
-            frac, mt, vt, vp = samples.warped_moments(k, x[0], math.exp(x[1]), math.exp(x[2]))
-            if frac <= 0 or vt <= 0 or vp <= 0:
-                return np.array([1e3, 1e3, 1e3])
-            # The mean is what the slope slider moves: it weighs most where not all can be met.
-            return np.array([(mt - mu_target[k]) / 0.002, math.log(vt / var_t_target[k]) / 0.02,
-                             math.log(vp / var_p_target[k]) / 0.02])
-
-        r0 = residual(x0)
-        if np.all(np.abs(r0) < 1e-4):
-            x = x0
+    mu_target, var_t_target, var_p_target = (np.asarray(a, float) for a in (mu_target, var_t_target, var_p_target))
+    m0 = samples.mu + (mu_target - samples.base_mean)
+    kt0 = np.sqrt(var_t_target / np.maximum(samples.base_var_t, 1e-300))
+    kp0 = np.sqrt(var_p_target / np.maximum(samples.base_var_p, 1e-300))
+    m, kt, kp = m0.copy(), kt0.copy(), kp0.copy()
+    best = None
+    for _ in range(iters):
+        frac, mt, vt, vp = samples.moments(m, kt, kp)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lt = np.log(np.where(vt > 0, vt, np.nan) / var_t_target)
+            lp = np.log(np.where(vp > 0, vp, np.nan) / var_p_target)
+        # The mean is what the slope slider moves: it weighs most where not all can be met.
+        r = np.stack([(mt - mu_target) / 0.002, lt / 0.02, lp / 0.02], axis=1)
+        score = np.nan_to_num((r ** 2).sum(axis=1), nan=np.inf)
+        if best is None:
+            best = [score, m.copy(), kt.copy(), kp.copy(), frac, r]
         else:
-            lo = x0 - np.array([0.5, math.log(4.0), math.log(4.0)])
-            hi = x0 + np.array([0.5, math.log(4.0), math.log(4.0)])
-            sol = least_squares(residual, x0, bounds=(lo, hi), diff_step=1e-4, xtol=1e-10, ftol=1e-10,
-                                max_nfev=60)
-            x = sol.x if np.sum(sol.fun ** 2) <= np.sum(r0 ** 2) else x0
-        r = residual(x)
-        frac = samples.warped_moments(k, x[0], math.exp(x[1]), math.exp(x[2]))[0]
-        out[k] = (x[0], math.exp(x[1]), math.exp(x[2]), max(frac, 0.25))  # gain capped at 4x
-        reached[k] = bool(abs(r[0]) < 2.5 and np.all(np.abs(r[1:]) < 0.5))  # 0.005 rad, 1 % variances
-    return out, reached
+            better = score < best[0]
+            for slot, v in zip(best, (score, m, kt, kp, frac, r)):
+                slot[better] = v[better]
+        if np.all(best[0] < 1e-6):
+            break
+        m = np.clip(m + (mu_target - mt), m0 - 0.5, m0 + 0.5)
+        kt = np.clip(kt * np.sqrt(np.clip(np.nan_to_num(np.exp(-lt), nan=1.0), 0.25, 4.0)), kt0 / 4, kt0 * 4)
+        kp = np.clip(kp * np.sqrt(np.clip(np.nan_to_num(np.exp(-lp), nan=1.0), 0.25, 4.0)), kp0 / 4, kp0 * 4)
+    _, m, kt, kp, frac, r = best
+    reached = (np.abs(r[:, 0]) < 2.5) & np.all(np.abs(r[:, 1:]) < 0.5, axis=1)  # 0.005 rad, 1 % variances
+    return np.stack([m, kt, kp, np.maximum(frac, 0.25)], axis=1), reached  # gain capped at 4x
 
 
 # --- model mode ------------------------------------------------------------------------------
 
+_LOG_SQRT_2PI = 0.5 * math.log(2 * math.pi)
+
+
+def _log_mass(a, b):
+    """log(Phi(b) - Phi(a)) for a < b, accurate far in either tail (a lobe centred well
+    beyond the horizon has all its truncated mass in a sliver of the far tail)."""
+    flip = a > 0  # Phi(b) - Phi(a) = Phi(-a) - Phi(-b): keep the difference on the left tail
+    lo, hi = np.where(flip, -b, a), np.where(flip, -a, b)
+    l_hi, l_lo = log_ndtr(hi), log_ndtr(lo)
+    with np.errstate(divide="ignore"):
+        return l_hi + np.log1p(-np.exp(np.minimum(l_lo - l_hi, 0.0)))
+
+
 def _trunc_moments(m, s):
-    """Mean and variance of N(m, s^2) truncated to [-pi/2, pi/2] (vectorized)."""
+    """Mean and variance of N(m, s^2) truncated to [-pi/2, pi/2] (vectorized, tail-safe)."""
+    m, s = np.asarray(m, float), np.asarray(s, float)
     a, b = (-HALF_PI - m) / s, (HALF_PI - m) / s
-    z = 0.5 * (erf(b / math.sqrt(2)) - erf(a / math.sqrt(2)))
-    pa, pb = np.exp(-0.5 * a * a) / math.sqrt(2 * math.pi), np.exp(-0.5 * b * b) / math.sqrt(2 * math.pi)
-    z = np.maximum(z, 1e-300)
-    mean = m + s * (pa - pb) / z
-    var = s * s * (1 + (a * pa - b * pb) / z - ((pa - pb) / z) ** 2)
-    return mean, var
+    log_z = _log_mass(a, b)
+    pa = np.exp(-0.5 * a * a - _LOG_SQRT_2PI - log_z)  # phi(a) / Z
+    pb = np.exp(-0.5 * b * b - _LOG_SQRT_2PI - log_z)
+    mean = m + s * (pa - pb)
+    var = s * s * (1 + (a * pa - b * pb) - (pa - pb) ** 2)
+    # The closed form cancels badly when all the mass sits in a sliver at one edge; there
+    # the truncated law is exponential to first order, and its variance equals its
+    # squared mean distance from that edge.
+    d = np.minimum(np.abs(HALF_PI - mean), np.abs(mean + HALF_PI))
+    return np.clip(mean, -HALF_PI, HALF_PI), np.where(np.isfinite(var) & (var > 0), var, d * d)
 
 
 def solve_truncated(mean_t, var_t, iters=60):
@@ -234,11 +271,31 @@ def solve_truncated(mean_t, var_t, iters=60):
     return m, s, ok
 
 
+def _reachable_truncated(mean_t, var_t):
+    """``solve_truncated``, but where no truncated Gaussian has both targets (a mean near
+    the horizon allows only a small variance) the variance gives way, never the mean.
+
+    Left alone, the nearest solution is a nearly uniform lobe; near grazing, where the
+    energy is largest, it then leaks into every other view through the reciprocal average."""
+    var_t = np.array(np.broadcast_to(var_t, np.shape(mean_t)), float)
+    m, s, ok = solve_truncated(mean_t, var_t)
+    for _ in range(40):
+        if ok.all():
+            break
+        var_t = np.where(ok, var_t, 0.8 * var_t)
+        m2, s2, ok2 = solve_truncated(mean_t, var_t)
+        m, s, ok = np.where(ok, m, m2), np.where(ok, s, s2), ok | ok2
+    return m, s, ok
+
+
 def _truncated_gauss(x, m, s):
-    a, b = (-HALF_PI - m) / s, (HALF_PI - m) / s
-    z = s * math.sqrt(2 * math.pi) * 0.5 * (erf(b / math.sqrt(2)) - erf(a / math.sqrt(2)))
-    inside = np.abs(x) <= HALF_PI
-    return np.where(inside, np.exp(-0.5 * ((x - m) / s) ** 2) / np.maximum(z, 1e-300), 0.0)
+    """Eq. 8: the Gaussian normalized on [-pi/2, pi/2], evaluated in logs so that a lobe
+    centred beyond the horizon stays finite."""
+    log_z = _log_mass((-HALF_PI - m) / s, (HALF_PI - m) / s) + np.log(s) + _LOG_SQRT_2PI
+    u = (x - m) / s
+    g = np.exp(-0.5 * u * u - log_z)
+    g[np.abs(x) > HALF_PI] = 0.0
+    return g
 
 
 # --- tabulation ------------------------------------------------------------------------------
@@ -255,14 +312,31 @@ def _view_frame(w_view, w_lit):
     return elev, theta, phi
 
 
+def view_goals(prof: Profiles, fit: dict, mode: str, mu: float, s2: float):
+    """Per-view mean, var_theta, var_phi that the output's profiles should show.
+
+    Warp keeps each view's measured deviation from the fitted line and its measured
+    variance split, scaled by the ratio of average variances; model mode is Eq. 7 exactly."""
+    theta = np.asarray(prof.theta_o, float)
+    if mode == "model":
+        return mu * theta, np.full_like(theta, s2), np.full_like(theta, s2)
+    p = prof["avg"]
+    deviation = np.nan_to_num(np.asarray(p["mu_theta"], float)) - fit["mu_slope"] * theta
+    ratio = s2 / fit["sigma2"]
+    var_t = np.nan_to_num(np.asarray(p["sigma_tt"], float), nan=LAMBERT_VARIANCE)
+    var_p = np.nan_to_num(np.asarray(p["sigma_pp"], float), nan=LAMBERT_VARIANCE)
+    return mu * theta + deviation, np.maximum(var_t * ratio, 1e-14), np.maximum(var_p * ratio, 1e-14)
+
+
 def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, fit: dict | None = None,
-         remeasure: bool = True, progress=None, max_rounds: int = 5) -> EditResult:
+         remeasure: bool = True, progress=None, max_rounds: int = 6) -> EditResult:
     """Re-synthesize ``table`` for the slider ``targets``. Never modifies ``table``.
 
     The reciprocal symmetrization moves the moments (a lobe seen with the roles swapped sits
-    elsewhere), so synthesis runs in rounds: tabulate, re-measure, move the synthesis
-    targets by the error, until the re-measured mean slope and variance hit the sliders or
-    stop improving. What was reached is reported either way.
+    elsewhere), and so does clipping. So synthesis runs in rounds: tabulate, re-measure, and
+    move each view's synthesis targets by that view's error, plus a common term for the
+    error left in the fitted slope and variance (views that cannot move make the others
+    compensate). The best round is kept, and what was reached is reported either way.
     """
     if prof is None:
         prof = compute_profiles(table)
@@ -287,39 +361,48 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
     values = specular_values(table, kd, prof.split)
     samples = SliceSamples(values, prof) if targets.mode == "warp" else None
-    # Secant steps on the mean slope and on log(variance), each against its own error.
-    x = np.array([mu_t, math.log(s2_t)])
     goal = np.array([mu_t, math.log(s2_t)])
+    # Broyden steps on (synthesis slope, log synthesis variance) -> (measured slope, log
+    # measured variance). The map is far from the identity: for narrow lobes the measured
+    # slope moves *against* the synthesis slope (the role-swapped twin of a lobe at
+    # mu theta_o sits near theta_o / mu), so the Jacobian is learned from the rounds.
+    x = goal.copy()
+    jac = np.eye(2)
     prev = None
     best = None
     for round_ in range(max_rounds):
-        out, notes = synthesize(table, targets, prof, fit, x[0], math.exp(x[1]), values, samples)
+        vt = view_goals(prof, fit, targets.mode, x[0], math.exp(x[1])) + (1.0,)
+        out, notes = synthesize(table, targets, prof, fit, vt, values, samples)
         new_prof = compute_profiles(out, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split)
         f = fit_material(new_prof)
+        if progress:
+            progress(round_ + 1, max_rounds)
         if f["mu_slope"] is None or f["sigma2"] is None or f["sigma2"] <= 0:
             break
         y = np.array([f["mu_slope"], math.log(f["sigma2"])])
         err = y - goal
         score = abs(err[0]) / 0.01 + abs(math.expm1(err[1])) / 0.02
         if best is None or score < best[0]:
-            best = (score, out, notes, new_prof, f)
+            best = (score, out, notes, new_prof, f, x.copy(), y)
         if abs(err[0]) < 0.003 and abs(err[1]) < 0.006:
             break
-        slope = np.ones(2)
         if prev is not None:
             dx, dy = x - prev[0], y - prev[1]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                sec = dy / dx
-            slope = np.where(np.isfinite(sec) & (np.abs(dx) > 1e-9) & (sec > 0.2) & (sec < 5.0), sec, 1.0)
+            if dx @ dx > 1e-12:
+                jac = jac + np.outer(dy - jac @ dx, dx) / (dx @ dx)
+        if abs(np.linalg.det(jac)) < 1e-3:
+            jac = np.eye(2)
+        # Step from the best point so far: a bad round never becomes the new base.
+        bx, by = best[5], best[6]
         prev = (x.copy(), y)
-        x = x - err / slope
+        step = np.linalg.solve(jac, goal - by)
+        step = np.clip(step, [-0.15, -0.7], [0.15, 0.7])
+        x = bx + step
         x[0] = float(np.clip(x[0], -1.6, 0.6))
         x[1] = float(np.clip(x[1], math.log(MIN_SIGMA2), math.log(LAMBERT_VARIANCE)))
-        if progress:
-            progress(round_ + 1, max_rounds)
     if best is None:
         raise ValueError(f"{table.name}: the edit left no specular energy to measure")
-    _, out, notes, new_prof, f = best
+    _, out, notes, new_prof, f = best[:5]
     warnings += notes
     if abs(f["mu_slope"] - mu_t) >= 0.01 or abs(f["sigma2"] / s2_t - 1.0) >= 0.02:
         warnings.append(f"target not reachable for a reciprocal table: reached mean slope {f['mu_slope']:+.3f} "
@@ -329,28 +412,33 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     return res
 
 
-def synthesize(table, targets, prof, fit, mu_s, s2_s, values=None, samples=None):
-    """One tabulation for synthesis targets (mean slope, average variance); returns (table, notes).
+def synthesize(table, targets, prof, fit, view_targets=None, values=None, samples=None):
+    """One tabulation; returns (table, notes).
 
-    ``values``/``samples`` (the specular table and its slice samples) may be passed in so
-    that correction rounds do not recompute them."""
+    ``view_targets`` = (mean, var_theta, var_phi, energy gain (views, 3)) per view; by
+    default the sliders' goals (``view_goals``). ``values``/``samples`` (the specular table
+    and its slice samples) may be passed in so that correction rounds reuse them."""
     notes = []
     theta = np.asarray(prof.theta_o, float)
     kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
     if values is None:
         values = specular_values(table, kd, prof.split)
-    alpha_new = target_energy(prof, fit, targets)  # (views, 3)
+    if view_targets is None:
+        mu_t, s2_t, _ = resolve_targets(targets, fit)
+        view_targets = view_goals(prof, fit, targets.mode, mu_t, s2_t) + (1.0,)
+    goal_mean, goal_vt, goal_vp, energy_gain = view_targets
+    alpha_new = target_energy(prof, fit, targets) * energy_gain  # (views, 3)
     p = prof["avg"]
     if targets.mode == "warp":
         samples = samples or SliceSamples(values, prof)
-        deviation = np.nan_to_num(np.asarray(p["mu_theta"], float)) - fit["mu_slope"] * theta
-        ratio = s2_s / fit["sigma2"]
         # The node sampling is coarser than the profile integrator: express the targets as
         # changes from the node-sampled original, so a no-op edit solves to the identity map.
-        base = np.array([samples.warped_moments(k, samples.mu[k], 1.0, 1.0) for k in range(len(theta))])
-        mu_target = base[:, 1] + (mu_s * theta + deviation - samples.mu)
-        vt_target = np.maximum(base[:, 2] * ratio, 1e-14)
-        vp_target = np.maximum(base[:, 3] * ratio, 1e-14)
+        var_t = np.nan_to_num(np.asarray(p["sigma_tt"], float), nan=LAMBERT_VARIANCE)
+        var_p = np.nan_to_num(np.asarray(p["sigma_pp"], float), nan=LAMBERT_VARIANCE)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mu_target = samples.base_mean + (goal_mean - samples.mu)
+            vt_target = np.maximum(samples.base_var_t * np.where(var_t > 0, goal_vt / var_t, 1.0), 1e-14)
+            vp_target = np.maximum(samples.base_var_p * np.where(var_p > 0, goal_vp / var_p, 1.0), 1e-14)
         params, reached = solve_warp(samples, mu_target, vt_target, vp_target)
         if not reached.all():
             bad = np.degrees(theta[~reached])
@@ -362,28 +450,39 @@ def synthesize(table, targets, prof, fit, mu_s, s2_s, values=None, samples=None)
             gain = np.where(alpha_old > 1e-12 * max(alpha_old.max(), 1e-300),
                             alpha_new / (alpha_old * np.maximum(params[:, 3:4], 1e-3)), 0.0)
 
-        def evaluate(side, sel):
-            kt = side.interp(params[:, 1], sel)
-            kp = side.interp(params[:, 2], sel)
-            src_t = side.interp(samples.mu, sel) + (side.theta[sel] - side.interp(params[:, 0], sel)) / kt
-            src_p = side.phi[sel] / kp
-            inside = (np.abs(src_t) <= HALF_PI) & (np.abs(src_p) <= HALF_PI)
-            cells = cell_indices_view(np.clip(src_t, -HALF_PI, HALF_PI), np.clip(src_p, -HALF_PI, HALF_PI),
-                                      side.sin_e[sel], side.cos_e[sel])
-            scale = inside / (kt * kp)
-            return np.stack([values[cells, c] * side.interp(gain[:, c], sel) * scale for c in range(3)])
+        # One gather per side for every per-view quantity: (mu_new, k_t, k_p, mu_old, gain r, g, b).
+        per_view = np.column_stack([params[:, :3], samples.mu, gain])
+
+        def evaluate(cells_side):
+            mu_new, kt, kp, mu_old, g_r, g_g, g_b = cells_side.interp(per_view)
+            src_t = cells_side.theta - mu_new
+            src_t /= kt
+            src_t += mu_old
+            src_p = cells_side.phi / kp
+            scale = (np.abs(src_t) <= HALF_PI) & (np.abs(src_p) <= HALF_PI)
+            scale = scale / (kt * kp)
+            np.clip(src_t, -HALF_PI, HALF_PI, out=src_t)
+            np.clip(src_p, -HALF_PI, HALF_PI, out=src_p)
+            spec = values[cell_indices_view(src_t, src_p, cells_side.sin_e, cells_side.cos_e), :3].T
+            for row, g in zip(spec, (g_r, g_g, g_b)):
+                g *= scale
+                row *= g
+            return spec
 
     else:
-        m, s, ok = solve_truncated(mu_s * theta, np.full_like(theta, s2_s))
-        m_p, s_p, ok_p = solve_truncated(np.zeros(1), np.array([s2_s]))
+        m, s, ok = _reachable_truncated(goal_mean, goal_vt)
+        m_p, s_p, ok_p = _reachable_truncated(np.zeros_like(theta), goal_vp)
         if not (ok.all() and ok_p.all()):
             notes.append("model: no truncated Gaussian has the target mean and variance at "
                          f"{int((~ok).sum())} view(s); the nearest reachable lobe is used")
 
-        def evaluate(side, sel):
-            g = _truncated_gauss(side.theta[sel], side.interp(m, sel), side.interp(s, sel)) \
-                * _truncated_gauss(side.phi[sel], m_p[0], s_p[0])
-            return np.stack([side.interp(alpha_new[:, c], sel) * g for c in range(3)])
+        per_view = np.column_stack([m, s, m_p, s_p, alpha_new])
+
+        def evaluate(cells_side):
+            mv, sv, mpv, spv, a_r, a_g, a_b = cells_side.interp(per_view)
+            g = _truncated_gauss(cells_side.theta, mv, sv)
+            g *= _truncated_gauss(cells_side.phi, mpv, spv)
+            return np.stack([a_r * g, a_g * g, a_b * g])
 
     return _tabulate(table, evaluate, kd, theta), notes
 
@@ -391,52 +490,74 @@ def synthesize(table, targets, prof, fit, mu_s, s2_s, values=None, samples=None)
 _PAIR_GEOMETRY = {}
 
 
-class _Side:
-    """One orientation of every cell: the view's elevation and the lit direction's
-    view-centred angles, plus interpolation weights into the profile's view grid."""
+class _CellSide:
+    """One orientation of the active cells: the view's elevation and the lit direction's
+    view-centred angles, with linear interpolation weights into the profile's view grid."""
 
-    def __init__(self, elev, theta, phi):
-        self.elev, self.theta, self.phi = elev, theta, phi
+    def __init__(self, elev, theta, phi, grid):
+        self.theta, self.phi = theta, phi
         self.sin_e, self.cos_e = np.sin(elev), np.cos(elev)
-        self.grid = None
+        self.n_views = len(grid)
+        if len(grid) > 1:
+            e = np.clip(elev, grid[0], grid[-1])
+            self.i = np.clip(np.searchsorted(grid, e, side="right") - 1, 0, len(grid) - 2)
+            span = np.diff(grid)[self.i]
+            self.f = np.clip((e - grid[self.i]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
 
-    def weights(self, grid):
-        if self.grid is None or len(self.grid) != len(grid) or np.any(self.grid != grid):
-            e = np.clip(self.elev, grid[0], grid[-1])
-            i = np.clip(np.searchsorted(grid, e, side="right") - 1, 0, max(len(grid) - 2, 0))
-            span = np.diff(grid)[i] if len(grid) > 1 else np.ones_like(e)
-            self.i = i
-            self.f = np.clip((e - grid[i]) / np.where(span > 0, span, 1.0), 0.0, 1.0) if len(grid) > 1 else 0 * e
-            self.grid = np.array(grid)
-        return self
-
-    def interp(self, values, sel):
-        v = np.asarray(values, float)
-        if len(v) == 1:
-            return np.full(len(sel), v[0])
-        i, f = self.i[sel], self.f[sel]
-        return v[i] + f * (v[i + 1] - v[i])
+    def interp(self, values):
+        """(views, k) per-view quantities at every cell: (k, cells), a contiguous row each."""
+        v = np.asarray(values, float).reshape(self.n_views, -1)
+        out = np.empty((v.shape[1], len(self.theta)))
+        if self.n_views == 1:
+            out[:] = v[0][:, None]
+            return out
+        step = np.diff(v, axis=0)
+        tmp = np.empty(len(self.theta))
+        for row, col, d in zip(out, v.T, step.T):  # per row, in place: large temporaries are slow here
+            np.take(col, self.i, out=row)
+            np.take(d, self.i, out=tmp)
+            tmp *= self.f
+            row += tmp
+        return out
 
 
 def _pair_geometry():
-    """Per cell, both orientations (cached; material independent, computed once)."""
+    """Per cell, both orientations (material independent: computed once per process)."""
     if "g" not in _PAIR_GEOMETRY:
         th, td, pd = cell_centres()
         wi, wo = directions_from_half_diff(th, td, pd)
         above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-        _PAIR_GEOMETRY["g"] = (above, _Side(*_view_frame(wo, wi)), _Side(*_view_frame(wi, wo)))
+        _PAIR_GEOMETRY["g"] = (above, _view_frame(wo, wi), _view_frame(wi, wo))
     return _PAIR_GEOMETRY["g"]
 
 
+_ACTIVE_CACHE: dict = {}
+
+
+def _active_sides(valid, grid):
+    """Both orientations restricted to the cells to synthesize, cached for the last mask and
+    view grid (slider drags and correction rounds re-tabulate the same material)."""
+    above, frame_a, frame_b = _pair_geometry()
+    active = np.flatnonzero(above & valid.any(axis=0))  # missing cells stay missing: skip them
+    key = (hash(active.tobytes()), len(active), tuple(np.round(np.asarray(grid, float), 12)))
+    if _ACTIVE_CACHE.get("key") != key:
+        _ACTIVE_CACHE.clear()
+        sides = tuple(_CellSide(*(np.ascontiguousarray(x[active]) for x in frame), np.asarray(grid, float))
+                      for frame in (frame_a, frame_b))
+        _ACTIVE_CACHE.update(key=key, value=(active, sides))
+    return _ACTIVE_CACHE["value"]
+
+
 def _tabulate(table, evaluate, kd, grid):
-    above, side_a, side_b = _pair_geometry()
-    active = np.flatnonzero(above & table.valid.any(axis=0))  # missing cells stay missing: skip them
-    v = 0.5 * (evaluate(side_a.weights(grid), active) + evaluate(side_b.weights(grid), active))
+    active, (side_a, side_b) = _active_sides(table.valid, grid)
+    v = evaluate(side_a)
+    v += evaluate(side_b)
+    v *= 0.5
     rho = np.zeros_like(table.rho)
     rho[:, active] = v
     rho += kd[:, None]
     valid = table.valid.copy()
-    rho = np.where(valid, rho, 0.0)
+    rho *= valid
     if not np.isfinite(rho).all() or rho.max(initial=0.0) > 1e30:
         raise ValueError("synthesis produced non-finite or absurd values; the slider targets are out of reach")
     return MerlTable(rho, valid, None)
