@@ -94,16 +94,20 @@ def fit_energy_joint(series, fit_range=DEFAULT_RANGE):
     Returns (theta0, theta1, [per-material dict]). Each material's residual is weighted by
     1/mean(alpha)^2 so a bright material does not dictate the shared knots.
     """
-    prepared, weights = [], []
+    prepared, weights, scales = [], [], []
     for t, y in series:
         t, y = np.asarray(t, float), np.asarray(y, float)
         keep = np.isfinite(y) & (t >= fit_range[0] - 1e-12) & (t <= fit_range[1] + 1e-12)
         t, y = t[keep], y[keep]
         if len(t) < 4:
             raise ValueError("energy fit needs at least 4 finite samples in the fit range")
-        prepared.append((t, y))
+        # Fit y / mean|y|: the same as weighting by 1/mean|y|^2, without squaring an energy
+        # of 1e-200 (or 1e30) out of floating-point range.
         scale = float(np.mean(np.abs(y)))
-        weights.append(1.0 / scale ** 2 if scale > 0 else 1.0)
+        scale = scale if scale > 0 else 1.0
+        prepared.append((t, y / scale))
+        scales.append(scale)
+        weights.append(1.0)
     # Tie-break toward the paper's starting knots: a flat profile fits equally well with any
     # knots, and then the reported knots should be the conventional ones, not an accident.
     a0, a1 = _knot_grid(1.0)
@@ -115,11 +119,11 @@ def fit_energy_joint(series, fit_range=DEFAULT_RANGE):
     best = (a0[i], a1[i])
     best = _refine_knots(best, prepared, weights)
     out = []
-    for t, y in prepared:
+    for (t, y), scale in zip(prepared, scales):
         basis = energy_basis(t, *best)
         alpha_b, alpha1, m1 = _solve(basis, y)
-        fit = {"alpha_b": float(alpha_b), "alpha1": float(alpha1), "m1": float(m1)}
-        fit.update(_errors(basis @ np.array([alpha_b, alpha1, m1]) - y))
+        fit = {"alpha_b": float(alpha_b * scale), "alpha1": float(alpha1 * scale), "m1": float(m1 * scale)}
+        fit.update({k: v * scale for k, v in _errors(basis @ np.array([alpha_b, alpha1, m1]) - y).items()})
         out.append(fit)
     return float(best[0]), float(best[1]), out
 

@@ -25,7 +25,7 @@ from .merl import N_CELLS, cell_indices
 from .moments import exponents, monomials, n_monomials
 from .quadrature import RuleParams, graded_tensor_rule, slice_rule
 
-OPERATOR_VERSION = 5
+OPERATOR_VERSION = 6
 MAX_ORDER = 4
 
 
@@ -50,13 +50,22 @@ def default_views(count: int = 90, max_deg: float = 89.0) -> np.ndarray:
 
 @dataclass
 class SliceOperator:
-    """Per-view cell lists and monomial weights (about x = theta + theta_o, phi)."""
+    """Per-view cell lists and monomial weights (about x = theta + theta_o, phi).
+
+    ``weights`` are about the mirror direction, which is where measured lobes sit: one gather
+    and one float32 product give all the sums. A lobe far from the mirror and narrow would
+    lose its higher central moments in the shift from the mirror to its mean, so each cell
+    also carries its centroid and its moments about that centroid (``local``): sums about
+    any centre are rebuilt from those without cancellation (``centred_view_sums``).
+    """
 
     theta_o: np.ndarray
     offsets: np.ndarray
     cells: np.ndarray
     weights: np.ndarray  # (total, 15) float32, contiguous (a strided slice would be copied per view)
     albedo: np.ndarray   # (total,) float32: integral of cos(theta_i) dw_i over each cell's part
+    centroid: np.ndarray  # (total, 2) float32: each cell part's mean (x, phi)
+    local: np.ndarray     # (total, 14) float32: moments about the centroid, exponents(4)[1:]
 
     def view(self, k):
         a, b = self.offsets[k], self.offsets[k + 1]
@@ -87,27 +96,40 @@ def _build_view(theta_o, params):
         xp *= x
     # cos(theta_i) dw = cos(theta) cos(phi) * cos(phi) dtheta dphi: albedo from the same cells.
     alb = np.bincount(inv, weights=rule.weight * np.cos(rule.theta) * np.cos(rule.phi) ** 2, minlength=len(uniq))
-    return uniq.astype(np.int32), agg, alb.astype(np.float32)
+    # Centroid of each cell's part, rounded to what is stored, and moments about it: exact
+    # for the stored centre, so nothing is lost when sums are later moved to another centre.
+    mass = np.bincount(inv, weights=rule.weight, minlength=len(uniq))
+    mass = np.where(mass > 0, mass, 1.0)
+    cen = np.stack([np.bincount(inv, weights=rule.weight * x, minlength=len(uniq)) / mass,
+                    np.bincount(inv, weights=rule.weight * rule.phi, minlength=len(uniq)) / mass], axis=1)
+    cen = cen.astype(np.float32)
+    lx = x - cen[inv, 0].astype(float)
+    lp = rule.phi - cen[inv, 1].astype(float)
+    local = np.empty((len(uniq), n_monomials(MAX_ORDER) - 1), dtype=np.float32)
+    for j, (n, m) in enumerate(exponents(MAX_ORDER)[1:]):
+        local[:, j] = np.bincount(inv, weights=rule.weight * lx ** n * lp ** m, minlength=len(uniq))
+    return uniq.astype(np.int32), agg, alb.astype(np.float32), cen, local
+
+
+_PARTS = ("cells", "weights", "albedo", "centroid", "local")
 
 
 def _build_chunks(theta_o, params, progress):
-    cells, weights, albedo = [], [], []
+    parts = {name: [] for name in _PARTS}
     for k, t in enumerate(theta_o):
-        c, w, a = _build_view(float(t), params)
-        cells.append(c)
-        weights.append(w)
-        albedo.append(a)
+        for name, arr in zip(_PARTS, _build_view(float(t), params)):
+            parts[name].append(arr)
         if progress:
             progress(k + 1, len(theta_o))
-    offsets = np.concatenate(([0], np.cumsum([len(c) for c in cells]))).astype(np.int64)
-    return cells, weights, albedo, offsets
+    offsets = np.concatenate(([0], np.cumsum([len(c) for c in parts["cells"]]))).astype(np.int64)
+    return parts, offsets
 
 
 def build_operator(theta_o, params: RuleParams = RuleParams(), progress=None) -> SliceOperator:
     """Build in memory (no cache). ``get_operator`` is the cached, lower-peak-memory path."""
     theta_o = np.asarray(theta_o, dtype=float)
-    cells, weights, albedo, offsets = _build_chunks(theta_o, params, progress)
-    return SliceOperator(theta_o, offsets, np.concatenate(cells), np.concatenate(weights), np.concatenate(albedo))
+    parts, offsets = _build_chunks(theta_o, params, progress)
+    return SliceOperator(theta_o, offsets, **{k: np.concatenate(v) for k, v in parts.items()})
 
 
 def _operator_key(theta_o, params):
@@ -135,15 +157,14 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
     if os.path.isdir(folder):
         op = _load_operator(folder)
     if op is None:
-        cells, weights, albedo, offsets = _build_chunks(theta_o, params, progress)
+        parts, offsets = _build_chunks(theta_o, params, progress)
         # Stream the chunks into the cache and map them back: concatenating in memory would
         # hold the operator twice at the peak.
-        if _save_operator(theta_o, offsets, cells, weights, albedo, folder):
+        if _save_operator(theta_o, offsets, parts, folder):
             op = _load_operator(folder)
         if op is None:
-            op = SliceOperator(theta_o, offsets, np.concatenate(cells), np.concatenate(weights),
-                               np.concatenate(albedo))
-        del cells, weights, albedo
+            op = SliceOperator(theta_o, offsets, **{k: np.concatenate(v) for k, v in parts.items()})
+        del parts
     if not memo:
         _SMALL[key] = op
     else:
@@ -152,19 +173,24 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
     return op
 
 
+_PART_LAYOUT = {"cells": (np.int32, ()), "weights": (np.float32, (n_monomials(MAX_ORDER),)),
+                "albedo": (np.float32, ()), "centroid": (np.float32, (2,)),
+                "local": (np.float32, (n_monomials(MAX_ORDER) - 1,))}
+
+
 def _load_operator(folder):
     try:
-        op = SliceOperator(np.load(os.path.join(folder, "theta_o.npy")),
-                           np.load(os.path.join(folder, "offsets.npy")),
-                           np.load(os.path.join(folder, "cells.npy"), mmap_mode="r"),
-                           np.load(os.path.join(folder, "weights.npy"), mmap_mode="r"),
-                           np.load(os.path.join(folder, "albedo.npy"), mmap_mode="r"))
+        # np.load's default allow_pickle=False: a cache file can hold numbers, never objects.
+        theta_o = np.load(os.path.join(folder, "theta_o.npy"))
+        offsets = np.load(os.path.join(folder, "offsets.npy"))
+        parts = {k: np.load(os.path.join(folder, f"{k}.npy"), mmap_mode="r") for k in _PARTS}
     except (OSError, ValueError, EOFError):
         return None  # a damaged cache is rebuilt, never trusted
-    n = int(op.offsets[-1])
-    if op.cells.shape != (n,) or op.weights.shape != (n, n_monomials(MAX_ORDER)) or op.albedo.shape != (n,):
-        return None
-    return op
+    n = int(offsets[-1]) if offsets.ndim == 1 and len(offsets) else -1
+    for k, (dtype, tail) in _PART_LAYOUT.items():
+        if parts[k].shape != (n,) + tail or parts[k].dtype != dtype:
+            return None
+    return SliceOperator(theta_o, offsets, **parts)
 
 
 def _write_npy_chunks(path, chunks, dtype, shape):
@@ -175,7 +201,7 @@ def _write_npy_chunks(path, chunks, dtype, shape):
             fh.write(np.ascontiguousarray(c, dtype=dtype).tobytes())
 
 
-def _save_operator(theta_o, offsets, cells, weights, albedo, folder) -> bool:
+def _save_operator(theta_o, offsets, parts, folder) -> bool:
     """Write the cache folder atomically (temp folder, then rename). False if unwritable."""
     parent = os.path.dirname(folder)
     try:
@@ -187,9 +213,8 @@ def _save_operator(theta_o, offsets, cells, weights, albedo, folder) -> bool:
         n = int(offsets[-1])
         np.save(os.path.join(tmp, "theta_o.npy"), theta_o)
         np.save(os.path.join(tmp, "offsets.npy"), offsets)
-        _write_npy_chunks(os.path.join(tmp, "cells.npy"), cells, np.int32, (n,))
-        _write_npy_chunks(os.path.join(tmp, "weights.npy"), weights, np.float32, (n, n_monomials(MAX_ORDER)))
-        _write_npy_chunks(os.path.join(tmp, "albedo.npy"), albedo, np.float32, (n,))
+        for k, (dtype, tail) in _PART_LAYOUT.items():
+            _write_npy_chunks(os.path.join(tmp, f"{k}.npy"), parts[k], dtype, (n,) + tail)
         if os.path.isdir(folder):  # another process won the race; keep theirs
             shutil.rmtree(tmp, ignore_errors=True)
         else:
@@ -210,6 +235,48 @@ def table_sums(op: SliceOperator, values: np.ndarray, max_order: int = MAX_ORDER
         if values.dtype != w.dtype:
             w = np.asarray(w, dtype=values.dtype)
         out[k] = values[cells].T @ w
+    return out
+
+
+def centred_view_sums(op: SliceOperator, k: int, values: np.ndarray, centre_x, centre_phi,
+                      max_order: int = MAX_ORDER) -> np.ndarray:
+    """Sums (channels, monomials) of view ``k``, channel c about (centre_x[c], centre_phi[c]).
+
+    ``values`` is (N_CELLS, channels); the sums are in float64. Each cell's moments about its
+    own centroid are moved to the channel's centre: near the centre (where a lobe's mass is)
+    every term is small, and far cells add only positive even powers, so nothing large
+    cancels. This is the two-pass (centred) algorithm, with the cells' parts as first pass.
+    """
+    from math import comb
+
+    ex_ = exponents(max_order)
+    index = {e: i for i, e in enumerate(ex_)}
+    a, b = op.offsets[k], op.offsets[k + 1]
+    cells = op.cells[a:b]
+    v = np.asarray(values[cells], dtype=float).T                                 # (C, n)
+    lit = np.flatnonzero(v.any(axis=0))  # a narrow lobe lights few of the view's cells
+    v = v[:, lit]
+    local = np.empty((len(lit), len(ex_)))                                       # about each centroid
+    local[:, 0] = op.weights[a:b, 0][lit]
+    local[:, 1:] = op.local[a:b, :len(ex_) - 1][lit]  # exponents(max_order) prefixes exponents(4)
+    cen = np.asarray(op.centroid[a:b][lit], dtype=float)
+    ex = cen[None, :, 0] - np.atleast_1d(np.asarray(centre_x, float))[:, None]   # (C, n)
+    ep = cen[None, :, 1] - np.atleast_1d(np.asarray(centre_phi, float))[:, None]
+    px, pp = [np.ones_like(ex)], [np.ones_like(ep)]
+    for _ in range(max_order):
+        px.append(px[-1] * ex)
+        pp.append(pp[-1] * ep)
+    out = np.zeros((v.shape[0], len(ex_)))
+    # By the order o of the local moment: shifts of order up to max_order - o are needed.
+    for o in range(max_order + 1):
+        loc_cols = [index[(o - j, j)] for j in range(o + 1)]
+        shifts = exponents(max_order - o)
+        q = np.stack([v * px[s] * pp[t] for s, t in shifts], axis=1)             # (C, shifts, n)
+        prod = q @ local[:, loc_cols]                                            # (C, shifts, o + 1)
+        for si, (s, t) in enumerate(shifts):
+            for li, j in enumerate(range(o + 1)):
+                i = o - j
+                out[:, index[(s + i, t + j)]] += comb(s + i, i) * comb(t + j, j) * prod[:, si, li]
     return out
 
 

@@ -7,12 +7,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .integrate import MAX_ORDER, default_views, get_operator, table_sums
+from .integrate import MAX_ORDER, centred_view_sums, default_views, get_operator, table_sums
 from .merl import MerlTable
-from .moments import CHANNELS, KEYS_BY_ORDER, monomials, profiles_from_sums
+from .moments import CHANNELS, KEYS_BY_ORDER, monomials, profiles_from_sums, shift_amplification
 from .quadrature import RuleParams, slice_rule
 
 DIFFUSE_VIEW = math.radians(45.0)
+# The float32 sums carry relative errors of about 5e-8 (measured); a shift that amplifies
+# them more than this could move a standardized moment by more than ~3e-5, so such views
+# are summed again about their mean. Lobes at the mirror stay far below it.
+MAX_SHIFT_AMPLIFICATION = 100.0
 
 
 @dataclass
@@ -103,20 +107,74 @@ def compute_profiles(table: MerlTable, theta_o=None, *, max_order: int = MAX_ORD
         # float32 halves the memory traffic of the gather; against float64 it moves alpha
         # and sigma^2 by ~1e-6 relative (measured in BENCHMARKS.md), far inside the targets.
         op = get_operator(theta_o, params, cache_dir=cache_dir, progress=progress)
-        same_mask = np.array_equal(table.valid[0], table.valid[1]) and np.array_equal(table.valid[0], table.valid[2])
-        values = specular_values(table, kd, split, np.float32, with_average=not same_mask)
-        sums = table_sums(op, values, max_order)
-        if same_mask:
-            # Sums are linear in the values: with one mask for all channels, the average
-            # channel's sums are the mean of the three (a quarter less to gather).
-            sums = np.concatenate([sums, sums.mean(axis=1, keepdims=True)], axis=1)
+        exponent = None
+        peak = table.rho.max(axis=1)
+        if np.any((peak > 0) & ((peak < 2.0 ** -16) | (peak > 2.0 ** 16))):
+            values, exponent = _normalized_values(table, kd, split)
+            sums = table_sums(op, values, max_order)
+        else:
+            same_mask = (np.array_equal(table.valid[0], table.valid[1])
+                         and np.array_equal(table.valid[0], table.valid[2]))
+            values = specular_values(table, kd, split, np.float32, with_average=not same_mask)
+            sums = table_sums(op, values, max_order)
+            if same_mask:
+                # Sums are linear in the values: with one mask for all channels, the average
+                # channel's sums are the mean of the three (a quarter less to gather).
+                sums = np.concatenate([sums, sums.mean(axis=1, keepdims=True)], axis=1)
+        sums, centre_t, centre_p = _recentre_far_lobes(op, values, sums, theta_o, max_order)
     elif interp == "trilinear":
         sums = _trilinear_sums(table, kd, theta_o, max_order, params, progress)
+        centre_t, centre_p = np.broadcast_to(-theta_o[:, None], sums.shape[:2]), 0.0
     else:
         raise ValueError(f"unknown interpolation {interp!r} (nearest or trilinear)")
-    stats = profiles_from_sums(sums, -theta_o[:, None], max_order)
+    stats = profiles_from_sums(sums, centre_t, max_order, centre_phi=centre_p)
+    if interp == "nearest" and exponent is not None:
+        stats["alpha"] = np.ldexp(stats["alpha"], exponent[None, :])  # only the energy carries the scale
     channels = {ch: {k: stats[k][:, i] for k in KEYS_BY_ORDER[max_order]} for i, ch in enumerate(CHANNELS)}
     return Profiles(theta_o, kd, channels, max_order, split, interp, table.name)
+
+
+def _normalized_values(table, kd, split):
+    """Specular values (N_CELLS, 4: r, g, b, average), each column scaled by a power of two
+    so that its peak is in [0.5, 1); returns (float32 values, exponents).
+
+    For tables far outside float32's comfortable range (a near-black channel, subnormal or
+    huge values): the moments do not depend on the scale, the energy is scaled back exactly,
+    and nothing underflows in the float32 products with the small weights of narrow cells.
+    """
+    kd = np.asarray(kd, dtype=float) if split else np.zeros(3)
+    spec = np.maximum(table.rho - kd[:, None], 0.0) * table.valid
+    cols = np.vstack([spec, spec.mean(axis=0, keepdims=True) * table.valid.all(axis=0)])
+    del spec
+    peak = cols.max(axis=1)
+    exponent = np.where(peak > 0, np.frexp(peak)[1], 0)
+    # ldexp scales without forming 2**-e, which would overflow for a subnormal peak.
+    return np.ldexp(cols, -exponent[:, None]).T.astype(np.float32), exponent
+
+
+def _recentre_far_lobes(op, values, sums, theta_o, max_order):
+    """Sum again, about their own mean, the (view, channel) pairs the shift would spoil.
+
+    Returns (sums, centre_theta, centre_phi), the centres per (view, channel)."""
+    centre_t = np.repeat(-theta_o[:, None], sums.shape[1], axis=1)
+    centre_p = np.zeros(sums.shape[:2])
+    if max_order < 2:
+        return sums, centre_t, centre_p
+    bad = shift_amplification(sums, max_order) > MAX_SHIFT_AMPLIFICATION
+    if not bad.any():
+        return sums, centre_t, centre_p
+    sums = sums.copy()
+    if values.shape[1] == 3:  # one mask for all channels: the average is their mean
+        values = np.concatenate([values, values.mean(axis=1, keepdims=True)], axis=1)
+    for k in np.flatnonzero(bad.any(axis=1)):
+        chans = bad[k]
+        mass = np.where(sums[k, :, 0] > 0, sums[k, :, 0], 1.0)
+        mx = sums[k, :, 1] / mass  # first-order sums cancel nothing: good centres
+        mp = sums[k, :, 2] / mass
+        sums[k, chans] = centred_view_sums(op, k, values, mx, mp, max_order)[chans]
+        centre_t[k, chans] = -theta_o[k] + mx[chans]
+        centre_p[k, chans] = mp[chans]
+    return sums, centre_t, centre_p
 
 
 def _trilinear_sums(table, kd, theta_o, max_order, params, progress):
