@@ -16,6 +16,13 @@ class InputError(Exception):
     """Bad input from the user: reported as one line, exit code 2."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage mistakes are bad input too: one line on stderr (--help has the usage), exit 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 def _positive_int(text):
     try:
         v = int(text)
@@ -172,7 +179,7 @@ def cmd_bench(args):
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="python -m addon",
+    p = _Parser(prog="python -m addon",
                                 description="BRDF Moments: moment profiles of measured (MERL) BRDFs.")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -219,7 +226,7 @@ def build_parser():
 
 
 def main(argv=None):
-    from .core.merl import MerlError
+    from .core.merl import MerlError, display_path
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -231,6 +238,6 @@ def main(argv=None):
         print(f"error: {exc}", file=sys.stderr)
     except (OSError, ValueError) as exc:
         name = getattr(exc, "filename", None)
-        msg = f"{name}: {exc.strerror}" if name and getattr(exc, "strerror", None) else str(exc)
+        msg = f"{display_path(name)}: {exc.strerror}" if name and getattr(exc, "strerror", None) else str(exc)
         print(f"error: {msg}", file=sys.stderr)
     return 2

@@ -21,6 +21,17 @@ SHAPE = (RES_TH, RES_TD, RES_PD)
 CHANNEL_SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
 HEADER_BYTES = 12
 FILE_BYTES = HEADER_BYTES + 3 * N_CELLS * 8
+# Far above any measured reflectance (MERL peaks are ~1e4), and low enough that the float32
+# sums of the profile integrator and the squares in the fits cannot overflow.
+MAX_REFLECTANCE = 1e30
+
+
+def display_path(path) -> str:
+    """A path as given, but on one line: control characters (a newline in a file name) escaped."""
+    text = os.fsdecode(path) if path is not None else "<memory>"
+    if not text:
+        return "<no file name>"
+    return "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in text)
 
 
 class MerlError(ValueError):
@@ -29,7 +40,7 @@ class MerlError(ValueError):
     def __init__(self, path, fault):
         self.path = os.fspath(path) if path is not None else "<memory>"
         self.fault = fault
-        super().__init__(f"{self.path}: {fault}")
+        super().__init__(f"{display_path(path)}: {fault}")
 
 
 @dataclass
@@ -94,10 +105,15 @@ def table_from_stored(stored: np.ndarray, path=None) -> MerlTable:
         count = int((~finite).sum())
         raise MerlError(path, f"{count} non-finite value(s) ({kind} first at channel {bad[0]}, cell {bad[1]})")
     valid = stored >= 0.0
+    if not valid.any():
+        raise MerlError(path, "no measured cells: every value is negative (missing)")
     rho = stored * CHANNEL_SCALES[:, None]
     rho[~valid] = 0.0
-    if not np.isfinite(rho).all():
-        raise MerlError(path, "values overflow when scaled to reflectance")
+    huge = rho > MAX_REFLECTANCE
+    if huge.any():
+        bad = np.argwhere(huge)[0]
+        raise MerlError(path, f"{int(huge.sum())} value(s) above {MAX_REFLECTANCE:g}, beyond any reflectance "
+                              f"(first {rho[tuple(bad)]:.3g} at channel {bad[0]}, cell {bad[1]})")
     return MerlTable(rho, valid, path)
 
 
@@ -113,6 +129,8 @@ def write_merl(table: MerlTable, path, *, source=None) -> None:
             raise MerlError(path, "refusing to overwrite the input file; choose another output name")
     if not (np.isfinite(table.rho).all()):
         raise MerlError(path, "refusing to write non-finite values")
+    if table.rho.max(initial=0.0) > MAX_REFLECTANCE:
+        raise MerlError(path, f"refusing to write values above {MAX_REFLECTANCE:g} (read_merl would refuse them)")
     stored = np.where(table.valid, table.rho / CHANNEL_SCALES[:, None], -1.0)
     with atomic_path(path, ".binary") as tmp, open(tmp, "wb") as fh:
         fh.write(np.asarray(SHAPE, dtype="<i4").tobytes())
