@@ -1,0 +1,43 @@
+"""Output names that cannot leave the folder they are meant for.
+
+A material or export name comes from the user (a UI field, a file's stem) and may hold
+anything: ``../evil``, ``/etc/passwd``, ``C:\\x``, a newline. It is reduced to one plain
+file name, and the resolved path is checked to sit inside the chosen folder (which also
+catches a symlink planted in the folder that points outside it).
+"""
+
+from __future__ import annotations
+
+import os
+import unicodedata
+
+_KEEP = set("-_.+ ()")
+# Names Windows reserves in every folder: a file called "con.binary" cannot be created there.
+_RESERVED = {"con", "prn", "aux", "nul", *(f"com{i}" for i in range(10)), *(f"lpt{i}" for i in range(10))}
+MAX_NAME_BYTES = 200  # below the 255-byte limit of common file systems, with room for a suffix
+
+
+def safe_name(name: str, default: str = "material") -> str:
+    """``name`` as a single file name: separators and control characters become ``_``."""
+    text = unicodedata.normalize("NFC", str(name))
+    cleaned = "".join(c if (c.isalnum() or c in _KEEP) else "_" for c in text)
+    while len(cleaned.encode("utf-8")) > MAX_NAME_BYTES:
+        cleaned = cleaned[:-1]
+    cleaned = cleaned.strip(" .")  # no hidden files, no "..", no trailing dot (Windows drops it)
+    if not cleaned or cleaned.split(".")[0].lower() in _RESERVED:
+        cleaned = f"{default}_{cleaned}" if cleaned else default
+    return cleaned
+
+
+def safe_export_path(folder, name, suffix: str = ".binary") -> str:
+    """Absolute path for ``name`` (+ ``suffix``) inside ``folder``; raises ValueError otherwise."""
+    if folder is None or not os.fspath(folder):
+        raise ValueError("no output folder chosen")
+    base = safe_name(name)
+    if suffix and not base.lower().endswith(suffix.lower()):
+        base += suffix
+    root = os.path.realpath(os.fspath(folder))
+    path = os.path.realpath(os.path.join(root, base))
+    if os.path.dirname(path) != root:
+        raise ValueError(f"{base}: the export would leave the folder {root} (a link inside it points elsewhere)")
+    return path
