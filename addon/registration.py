@@ -1,11 +1,19 @@
-"""Every bpy class of the extension, registered in one place (order matters)."""
+"""Every bpy class of the extension, registered in one place (order matters: property
+groups before the types that point to them, operators before the panels that draw them)."""
 
 import bpy
 
 from . import panel, state
-from ..operators import load_merl
+from ..operators import analyse, apply_edit, export, load_merl, reset_sliders
 
-CLASSES = (*state.CLASSES, load_merl.BRDFMOMENTS_OT_load_merl, panel.MATERIAL_PT_brdf_moments)
+OPERATORS = (
+    load_merl.BRDFMOMENTS_OT_load_merl,
+    analyse.BRDFMOMENTS_OT_analyse,
+    reset_sliders.BRDFMOMENTS_OT_reset_sliders,
+    apply_edit.BRDFMOMENTS_OT_apply_edit,
+    export.BRDFMOMENTS_OT_export,
+)
+CLASSES = (*state.CLASSES, *OPERATORS, *panel.CLASSES)
 
 
 def register():

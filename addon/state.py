@@ -46,15 +46,30 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     fit_mean_rmse: bpy.props.FloatProperty(name="mean RMSE")
     fit_variance_rmse: bpy.props.FloatProperty(name="variance RMSE")
     fit_notes: bpy.props.StringProperty(name="notes")
-    # Sliders (the edit operators arrive with the editing issue).
+    # Sliders.
     strength: bpy.props.FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=4.0)
     colour: bpy.props.FloatVectorProperty(name="Colour", size=3, subtype="COLOR", default=(1.0, 1.0, 1.0), min=0.0)
     grazing_boost: bpy.props.FloatProperty(name="Grazing boost", default=1.0, min=0.0, soft_max=4.0)
     mu_slope: bpy.props.FloatProperty(name="Mean slope μ̃", default=-0.5, min=-1.0, max=0.0)
     sigma2: bpy.props.FloatProperty(name="Variance σ̃²", default=0.1, min=1e-6, max=math.pi ** 2 / 12)
-    lock: bpy.props.BoolProperty(name="Follow correlation", default=False)
+    lock: bpy.props.BoolProperty(name="Follow correlation", default=False,
+                                 description="move the variance with the mean slope along the correlation quadratic")
+    correlation_a: bpy.props.FloatProperty(
+        name="Correlation a", default=0.0,
+        description="the quadratic's a in σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12 (fit a set with 'python -m addon fit')")
     mode: bpy.props.EnumProperty(name="Mode", items=[("warp", "Warp", "keep the measured shape"),
                                                      ("model", "Model", "paper Eq. 7")], default="warp")
+    # The last re-synthesis (Apply).
+    edited_path: bpy.props.StringProperty(name="Edited table", subtype="FILE_PATH")
+    edited_profiles_data: bpy.props.StringProperty(options={"HIDDEN"})
+    achieved_mu_slope: bpy.props.FloatProperty(name="reached μ̃")
+    achieved_sigma2: bpy.props.FloatProperty(name="reached σ̃²")
+    max_albedo: bpy.props.FloatVectorProperty(name="Largest albedo", size=3, min=0.0)
+    edit_warnings: bpy.props.StringProperty(name="Warnings")
+    plot_caption: bpy.props.StringProperty(options={"HIDDEN"})  # the plot's y ranges, one chart a line
+    scale_to_one: bpy.props.BoolProperty(
+        name="Scale albedo to 1", default=False,
+        description="scale the edited material down so that it reflects no more light than it receives")
 
     def store_analysis(self, prof, fit):
         self.profiles_data = pack_profiles(prof)
@@ -75,6 +90,58 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def profiles(self):
         return unpack_profiles(self.profiles_data) if self.profiles_data else None
+
+    def edited_profiles(self):
+        return unpack_profiles(self.edited_profiles_data) if self.edited_profiles_data else None
+
+    def fit(self) -> dict:
+        """The stored fits as the engine's dict (enough for editing and plotting)."""
+        return {"alpha_b": self.fit_alpha_b, "theta0": self.fit_theta0, "theta1": self.fit_theta1,
+                "alpha1": self.fit_alpha1, "m1": self.fit_m1, "mu_slope": self.fit_mu_slope,
+                "sigma2": self.fit_sigma2, "channels": {}}
+
+    def reset_sliders(self):
+        self.strength, self.colour, self.grazing_boost = 1.0, (1.0, 1.0, 1.0), 1.0
+        self.mu_slope = min(max(self.fit_mu_slope, -1.0), 0.0)
+        self.sigma2 = min(max(self.fit_sigma2, 1e-6), math.pi ** 2 / 12)
+        self.lock = False
+
+    def slider_targets(self):
+        """The sliders as engine targets; a slider still at its fitted value stays exact."""
+        from .core.edit import EditTargets
+
+        at_fit_mu = abs(self.mu_slope - min(max(self.fit_mu_slope, -1.0), 0.0)) < 1e-6
+        at_fit_s2 = abs(self.sigma2 - min(max(self.fit_sigma2, 1e-6), math.pi ** 2 / 12)) < 1e-7
+        return EditTargets(strength=self.strength, colour=tuple(self.colour), grazing_boost=self.grazing_boost,
+                           mu_slope=None if at_fit_mu and not self.lock else self.mu_slope,
+                           sigma2=None if at_fit_s2 or self.lock else self.sigma2,
+                           mode=self.mode, lock=self.lock,
+                           correlation_a=self.correlation_a if self.lock else None)
+
+
+def plot_image(mat, prof=None, fit=None, edited=None, width=480, height=420):
+    """The panel's profile plot for ``mat``: a float image named after the material."""
+    from .plot_image import profile_plot
+
+    state = mat.brdf_moments
+    prof = prof or state.profiles()
+    if prof is None:
+        return None
+    px, charts = profile_plot(prof, fit or state.fit(), edited if edited is not None else state.edited_profiles(),
+                              width, height)
+    state.plot_caption = "\n".join(f"{name}: {lo:.3g} to {hi:.3g}" for name, lo, hi in charts)
+    name = f"BRDF Moments plot: {mat.name}"
+    img = bpy.data.images.get(name)
+    if img is None or tuple(img.size) != (width, height):
+        if img is not None:
+            bpy.data.images.remove(img)
+        img = bpy.data.images.new(name, width, height, alpha=True, float_buffer=False)
+    img.pixels.foreach_set(np.ascontiguousarray(px[::-1]).ravel())  # Blender's rows start at the bottom
+    img.update()
+    if hasattr(img, "preview_ensure"):
+        img.preview_ensure()
+        img.preview.reload()
+    return img
 
 
 CLASSES = (BRDFMomentsMaterial,)

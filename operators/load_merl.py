@@ -1,50 +1,48 @@
-"""Load a MERL file into the active material: read, analyse, fit, store."""
+"""Load MERL: a file browser filtered to .binary; the chosen file is analysed at once."""
 
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-
-def target_material(context, name=""):
-    if name:
-        return bpy.data.materials.get(name)
-    mat = getattr(context, "material", None)
-    if mat is None and context.object is not None:
-        mat = context.object.active_material
-    return mat
+from ..addon.jobs import BackgroundJob
+from .common import analysis_work, store_analysis, target_material
 
 
-class BRDFMOMENTS_OT_load_merl(bpy.types.Operator, ImportHelper):
-    """Load a measured BRDF (MERL .binary) and analyse its moment profiles"""
+class BRDFMOMENTS_OT_load_merl(BackgroundJob, bpy.types.Operator, ImportHelper):
+    """Load a measured BRDF (MERL .binary) into the material and analyse its moment profiles"""
 
     bl_idname = "brdf_moments.load_merl"
     bl_label = "Load MERL"
     bl_options = {"REGISTER", "UNDO"}
+    job_label = "Analysing"
 
     filename_ext = ".binary"
     filter_glob: bpy.props.StringProperty(default="*.binary", options={"HIDDEN"})
     material: bpy.props.StringProperty(name="Material", description="target material (default: active)")
 
-    def execute(self, context):
-        from ..addon.core.fits import fit_material
-        from ..addon.core.merl import MerlError, read_merl
-        from ..addon.core.profiles import compute_profiles
+    def invoke(self, context, event):
+        # The file browser first; Blender then calls execute, which runs the analysis.
+        return ImportHelper.invoke(self, context, event)
 
-        mat = target_material(context, self.material)
-        if mat is None:
-            self.report({"ERROR"}, "No material to load into: select an object with a material")
-            return {"CANCELLED"}
-        try:
-            table = read_merl(self.filepath)
-            prof = compute_profiles(table)
-            fit = fit_material(prof)
-        except MerlError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        except (OSError, ValueError, MemoryError) as exc:
-            self.report({"ERROR"}, f"{self.filepath}: {exc}")
-            return {"CANCELLED"}
+    def execute(self, context):
+        win = context.window_manager.windows if context.window_manager else None
+        if win and not bpy.app.background:
+            # In the UI the analysis runs as the Analyse operator: threaded, with progress.
+            try:
+                mat = target_material(context, self.material)
+            except ValueError as exc:
+                self.report({"ERROR"}, str(exc))
+                return {"CANCELLED"}
+            mat.brdf_moments.source_path = self.filepath
+            bpy.ops.brdf_moments.analyse("INVOKE_DEFAULT", material=mat.name)
+            return {"FINISHED"}
+        return BackgroundJob.execute(self, context)
+
+    def start(self, context):
+        self._mat_name = target_material(context, self.material).name
+        return analysis_work(self.filepath)
+
+    def finish(self, context, result):
+        mat = bpy.data.materials[self._mat_name]
+        name = store_analysis(mat, self.filepath, result)
         state = mat.brdf_moments
-        state.source_path = self.filepath
-        state.store_analysis(prof, fit)
-        self.report({"INFO"}, f"Analysed {table.name}: μ̃ {state.fit_mu_slope:+.3f}, σ̃² {state.fit_sigma2:.4f}")
-        return {"FINISHED"}
+        self.report({"INFO"}, f"Analysed {name}: μ̃ {state.fit_mu_slope:+.3f}, σ̃² {state.fit_sigma2:.4f}")

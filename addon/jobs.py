@@ -1,0 +1,136 @@
+"""Long work (analysis, re-synthesis) off Blender's main thread, with progress and cancel.
+
+An operator that mixes in ``BackgroundJob`` defines ``start(context)`` (main thread: read
+the UI state, return a function of ``report_progress`` that does the work with no bpy in
+it) and ``finish(context, result)`` (main thread again: write the result back).
+
+- With a window (the UI), ``invoke`` runs the work in a thread, shows progress in the
+  status bar and the window's progress cursor, and Esc or right-click cancels it.
+- Without one (``blender -b``, the bpy module, ``execute`` from a script), the same work
+  runs in place, so every operator also works headless.
+
+Errors never reach the user as a traceback: bad input becomes an ERROR report and the
+operator returns CANCELLED.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import bpy
+
+
+class Cancelled(Exception):
+    """Raised inside the work when the user cancelled it."""
+
+
+# Errors that mean "this input or these sliders cannot be used", reported in one line.
+USER_ERRORS = (OSError, ValueError, MemoryError, ArithmeticError)
+
+
+def _message(exc) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0]
+
+
+class BackgroundJob:
+    job_label = "Working"
+
+    # --- to be defined by the operator ------------------------------------------------------
+    def start(self, context):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def finish(self, context, result):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    # --- runner -----------------------------------------------------------------------------
+    def _prepare(self, context):
+        try:
+            return self.start(context)
+        except USER_ERRORS as exc:
+            self.report({"ERROR"}, _message(exc))
+            return None
+
+    def _complete(self, context, result):
+        try:
+            self.finish(context, result)
+        except USER_ERRORS as exc:
+            self.report({"ERROR"}, _message(exc))
+            return {"CANCELLED"}
+        return {"FINISHED"}
+
+    def execute(self, context):
+        work = self._prepare(context)
+        if work is None:
+            return {"CANCELLED"}
+        try:
+            result = work(lambda done, total: None)
+        except USER_ERRORS as exc:
+            self.report({"ERROR"}, _message(exc))
+            return {"CANCELLED"}
+        return self._complete(context, result)
+
+    def invoke(self, context, event):
+        if context.window_manager is None or not context.window_manager.windows or bpy.app.background:
+            return self.execute(context)
+        work = self._prepare(context)
+        if work is None:
+            return {"CANCELLED"}
+        self._cancel = threading.Event()
+        self._state = {"done": 0, "total": 1, "result": None, "error": None, "finished": False}
+
+        def report_progress(done, total):
+            if self._cancel.is_set():
+                raise Cancelled()
+            self._state["done"], self._state["total"] = done, max(total, 1)
+
+        def run():
+            try:
+                self._state["result"] = work(report_progress)
+            except Cancelled:
+                self._state["error"] = "cancelled"
+            except BaseException as exc:  # noqa: BLE001 - reported on the main thread
+                self._state["error"] = _message(exc) if isinstance(exc, USER_ERRORS) else \
+                    f"{type(exc).__name__}: {_message(exc)}"
+            finally:
+                self._state["finished"] = True
+
+        self._thread = threading.Thread(target=run, name=f"brdf_moments: {self.job_label}", daemon=True)
+        self._started = time.monotonic()
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.1, window=context.window)
+        wm.progress_begin(0, 1000)
+        wm.modal_handler_add(self)
+        self._thread.start()
+        return {"RUNNING_MODAL"}
+
+    def _end(self, context):
+        wm = context.window_manager
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        if context.workspace is not None:
+            context.workspace.status_text_set(None)
+
+    def modal(self, context, event):
+        if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
+            self._cancel.set()
+        if event.type != "TIMER":
+            return {"RUNNING_MODAL"} if not self._cancel.is_set() else {"RUNNING_MODAL", "PASS_THROUGH"}
+        st = self._state
+        if not st["finished"]:
+            frac = st["done"] / st["total"]
+            context.window_manager.progress_update(int(1000 * frac))
+            if context.workspace is not None:
+                what = "cancelling..." if self._cancel.is_set() else f"{100 * frac:.0f} %"
+                context.workspace.status_text_set(
+                    f"BRDF Moments: {self.job_label} {what} ({time.monotonic() - self._started:.0f} s) - Esc to cancel")
+            return {"RUNNING_MODAL"}
+        self._end(context)
+        if st["error"] == "cancelled":
+            self.report({"WARNING"}, f"{self.job_label}: cancelled, nothing was changed")
+            return {"CANCELLED"}
+        if st["error"]:
+            self.report({"ERROR"}, st["error"])
+            return {"CANCELLED"}
+        return self._complete(context, st["result"])

@@ -1,0 +1,88 @@
+"""Apply: re-synthesize the material's table from the sliders (off the main thread)."""
+
+import hashlib
+import json
+import os
+
+import bpy
+
+from ..addon.jobs import BackgroundJob
+from .common import analysed_material
+
+
+def edits_folder():
+    from ..addon.core.integrate import default_cache_dir
+
+    return os.path.join(default_cache_dir(), "edits")
+
+
+class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
+    """Re-synthesize a tabulated BRDF from the sliders and re-measure it (Esc cancels)"""
+
+    bl_idname = "brdf_moments.apply_edit"
+    bl_label = "Apply"
+    bl_options = {"REGISTER", "UNDO"}
+    job_label = "Re-synthesizing"
+
+    material: bpy.props.StringProperty(name="Material", description="target material (default: active)")
+
+    def start(self, context):
+        from ..addon.core.edit import edit, scale_to_albedo
+        from ..addon.core.fits import fit_material
+        from ..addon.core.merl import read_merl, write_merl
+        from ..addon.core.names import safe_name
+        from ..addon.core.profiles import compute_profiles
+
+        mat = analysed_material(context, self.material)
+        state = mat.brdf_moments
+        source = bpy.path.abspath(state.source_path)
+        if not os.path.isfile(source):
+            raise ValueError(f"{source}: the source MERL file is missing; load it again to edit")
+        targets = state.slider_targets()
+        scale = state.scale_to_one
+        # Content-addressed output: the same file and sliders give the same name, and an
+        # edit never overwrites another material's table (or the input).
+        st = os.stat(source)
+        key = json.dumps([source, st.st_size, st.st_mtime_ns, repr(targets), scale], sort_keys=True)
+        out = os.path.join(edits_folder(), f"{safe_name(mat.name)}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.binary")
+        self._mat_name = mat.name
+
+        def work(report_progress):
+            table = read_merl(source)
+            prof = compute_profiles(table)
+            fit = fit_material(prof)
+            report_progress(1, 10)
+            res = edit(table, targets, prof, fit, progress=lambda d, t: report_progress(1 + 8 * d // t, 10))
+            if scale:
+                res = scale_to_albedo(res)
+            os.makedirs(os.path.dirname(out), exist_ok=True)
+            write_merl(res.table, out, source=source)
+            if res.profiles is None or scale:
+                res.profiles = compute_profiles(res.table, prof.theta_o, kd=prof.kd if prof.split else None,
+                                                split=prof.split)
+            report_progress(10, 10)
+            return out, res, prof, fit
+
+        return work
+
+    def finish(self, context, result):
+        import math
+
+        from ..addon.state import pack_profiles, plot_image
+
+        out, res, prof, fit = result
+        mat = bpy.data.materials[self._mat_name]
+        state = mat.brdf_moments
+        state.edited_path = out
+        state.edited_profiles_data = pack_profiles(res.profiles)
+        finite = lambda v: float(v) if v is not None and math.isfinite(v) else 0.0  # noqa: E731
+        state.achieved_mu_slope = finite(res.achieved_mu_slope)
+        state.achieved_sigma2 = finite(res.achieved_sigma2)
+        state.max_albedo = [finite(v) for v in res.max_albedo]
+        state.edit_warnings = "; ".join(res.warnings)
+        plot_image(mat, prof, fit, res.profiles)
+        level = {"WARNING"} if res.warnings else {"INFO"}
+        msg = (f"{mat.name}: reached μ̃ {state.achieved_mu_slope:+.3f} (target {res.target_mu_slope:+.3f}), "
+               f"σ̃² {state.achieved_sigma2:.4f} (target {res.target_sigma2:.4f}), "
+               f"largest albedo {max(state.max_albedo):.3f}")
+        self.report(level, msg + ("; " + state.edit_warnings if res.warnings else ""))

@@ -1,0 +1,67 @@
+"""What the operators share: finding the material they act on, and the analysis job."""
+
+import os
+
+import bpy
+
+
+def target_material(context, name=""):
+    """The material named ``name``, else the one the UI is showing (Properties editor or the
+    active object's active material)."""
+    if name:
+        mat = bpy.data.materials.get(name)
+        if mat is None:
+            raise ValueError(f"no material named {name!r}")
+        return mat
+    mat = getattr(context, "material", None)
+    if mat is None and getattr(context, "object", None) is not None:
+        mat = context.object.active_material
+    if mat is None:
+        raise ValueError("no material to work on: select an object with a material")
+    return mat
+
+
+def analysed_material(context, name=""):
+    mat = target_material(context, name)
+    if not mat.brdf_moments.analysed:
+        raise ValueError(f"{mat.name}: load and analyse a MERL file first")
+    return mat
+
+
+def analysis_work(path):
+    """A function of ``report_progress`` that reads, analyses and fits ``path`` (no bpy)."""
+    from ..addon.core.fits import fit_material
+    from ..addon.core.merl import read_merl
+    from ..addon.core.profiles import compute_profiles
+
+    path = bpy.path.abspath(path) if path.startswith("//") else path
+    if not path:
+        raise ValueError("no MERL file chosen")
+    if not os.path.isfile(path):
+        raise ValueError(f"{path}: no such file")
+
+    def work(report_progress):
+        table = read_merl(path)
+        report_progress(1, 100)
+        # The slice operator is built once per machine (minutes), then memory-mapped: the
+        # progress bar matters on that first run.
+        prof = compute_profiles(table, progress=lambda done, total: report_progress(1 + 97 * done // total, 100))
+        fit = fit_material(prof)
+        report_progress(100, 100)
+        return table.name, prof, fit
+
+    return work
+
+
+def store_analysis(mat, path, result):
+    from ..addon.state import plot_image
+
+    name, prof, fit = result
+    state = mat.brdf_moments
+    state.source_path = path
+    state.store_analysis(prof, fit)
+    state.edited_path = ""
+    state.edited_profiles_data = ""
+    state.edit_warnings = ""
+    plot_image(mat, prof, fit, edited=False)
+    return name

@@ -1,0 +1,107 @@
+"""Export: the edited MERL table, the profiles as JSON, or the plots as PNG, into a folder.
+
+File names come from the material's name through ``safe_export_path``, so they cannot
+leave the chosen folder; every file is written atomically."""
+
+import json
+import os
+
+import bpy
+
+from .common import analysed_material
+
+
+def _write_json(data, path):
+    from ..addon.core.atomic import atomic_path
+
+    with atomic_path(path, ".json") as tmp, open(tmp, "w") as fh:
+        json.dump(data, fh, allow_nan=False)
+        fh.write("\n")
+
+
+def _write_png(mat, path, edited):
+    """The profile figure with matplotlib where it exists, else the panel's own image."""
+    from ..addon.core.atomic import atomic_path
+
+    state = mat.brdf_moments
+    try:
+        from ..addon.plots import plot_profiles
+    except ImportError:  # Blender builds whose Python has no matplotlib
+        plot_profiles = None
+    prof = state.edited_profiles() if edited else state.profiles()
+    if plot_profiles is not None:
+        plot_profiles(prof, path, title=f"{mat.name} ({'edited' if edited else 'measured'})")
+        return
+    from ..addon.state import plot_image
+
+    img = plot_image(mat, edited=state.edited_profiles() if edited else False)
+    with atomic_path(path, ".png") as tmp:
+        img.filepath_raw = tmp
+        img.file_format = "PNG"
+        img.save()
+        img.filepath_raw = ""
+
+
+class BRDFMOMENTS_OT_export(bpy.types.Operator):
+    """Export the edited MERL table, the profiles (JSON) or the plots (PNG) to a folder"""
+
+    bl_idname = "brdf_moments.export"
+    bl_label = "Export"
+    bl_options = {"REGISTER"}
+
+    what: bpy.props.EnumProperty(name="What", items=[
+        ("TABLE", "Edited MERL table", "the re-synthesized table (.binary)"),
+        ("PROFILES", "Profiles JSON", "measured (and edited) moment profiles, as 'python -m addon profiles' writes"),
+        ("PLOTS", "Plots PNG", "the profile figures, measured and edited"),
+    ], default="TABLE")
+    directory: bpy.props.StringProperty(name="Folder", subtype="DIR_PATH")
+    filter_folder: bpy.props.BoolProperty(default=True, options={"HIDDEN"})
+    material: bpy.props.StringProperty(name="Material", description="source material (default: active)")
+
+    def invoke(self, context, event):
+        if bpy.app.background or self.directory:
+            return self.execute(context)
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        try:
+            written = self._export(context)
+        except (OSError, ValueError) as exc:
+            self.report({"ERROR"}, str(exc).splitlines()[0])
+            return {"CANCELLED"}
+        self.report({"INFO"}, "Exported " + ", ".join(written))
+        return {"FINISHED"}
+
+    def _export(self, context):
+        from ..addon.core.merl import read_merl, write_merl
+        from ..addon.core.names import safe_export_path
+
+        mat = analysed_material(context, self.material)
+        state = mat.brdf_moments
+        folder = bpy.path.abspath(self.directory) if self.directory else ""
+        if not folder or not os.path.isdir(folder):
+            raise ValueError(f"{folder or 'no folder'}: choose an existing folder to export into")
+        written = []
+        if self.what == "TABLE":
+            if not state.edited_path or not os.path.isfile(state.edited_path):
+                raise ValueError(f"{mat.name}: nothing to export yet; press Apply to re-synthesize the table")
+            dest = safe_export_path(folder, f"{mat.name}_edited", ".binary")
+            write_merl(read_merl(state.edited_path), dest, source=bpy.path.abspath(state.source_path))
+            written.append(dest)
+        elif self.what == "PROFILES":
+            data = {"material": mat.name, "source": state.source_path, "measured": state.profiles().to_json()}
+            edited = state.edited_profiles()
+            if edited is not None:
+                data["edited"] = edited.to_json()
+            dest = safe_export_path(folder, f"{mat.name}_profiles", ".json")
+            _write_json(data, dest)
+            written.append(dest)
+        else:
+            for edited in (False, True):
+                if edited and state.edited_profiles() is None:
+                    continue
+                dest = safe_export_path(folder, f"{mat.name}_{'edited' if edited else 'measured'}_profiles", ".png")
+                _write_png(mat, dest, edited)
+                written.append(dest)
+        return written

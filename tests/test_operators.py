@@ -1,0 +1,184 @@
+"""The extension's operators under the bpy 4.5 wheel (headless: the same code paths as
+``blender -b``; the threaded modal path needs a window, which the bpy module has not)."""
+
+import hashlib
+import json
+import math
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from addon.core.fits import fit_material
+from addon.core.merl import read_merl
+from addon.core.profiles import compute_profiles
+
+
+def _sha(path):
+    return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+
+@pytest.fixture
+def analysed(fresh, tmp_path, monkeypatch):
+    """A material with ggx_rough analysed through the Analyse operator; edits go to tmp."""
+    import samples
+
+    monkeypatch.setenv("BRDF_MOMENTS_CACHE", os.environ["BRDF_MOMENTS_CACHE"])  # edits/ lives under it
+    src = tmp_path / "rough.binary"
+    shutil.copy(samples.sample_path("ggx_rough"), src)
+    bpy = fresh
+    mat = bpy.data.materials.new("Rough")
+    mat.use_fake_user = True
+    mat.brdf_moments.source_path = str(src)
+    assert bpy.ops.brdf_moments.analyse(material="Rough") == {"FINISHED"}
+    return bpy, mat, src
+
+
+def test_analyse_stores_fits_and_draws_the_plot(analysed):
+    bpy, mat, src = analysed
+    state = mat.brdf_moments
+    want = fit_material(compute_profiles(read_merl(src)))
+    assert state.analysed
+    assert state.fit_mu_slope == pytest.approx(want["mu_slope"], rel=1e-5)
+    img = bpy.data.images["BRDF Moments plot: Rough"]
+    px = np.array(img.pixels[:]).reshape(img.size[1], img.size[0], 4)
+    background = np.array([0.16, 0.16, 0.16])
+    # Curves were drawn: a good share of pixels differ from the background colour.
+    drawn = np.abs(px[..., :3] - background).max(axis=-1) > 0.1
+    assert 0.01 < drawn.mean() < 0.5
+    assert "mean:" in state.plot_caption and "variance:" in state.plot_caption
+
+
+def test_reset_sliders_returns_to_the_fit(analysed):
+    bpy, mat, _ = analysed
+    state = mat.brdf_moments
+    state.mu_slope, state.sigma2, state.strength = -0.2, 0.3, 2.0
+    assert bpy.ops.brdf_moments.reset_sliders(material="Rough") == {"FINISHED"}
+    assert state.mu_slope == pytest.approx(min(max(state.fit_mu_slope, -1), 0), abs=1e-6)
+    assert state.sigma2 == pytest.approx(state.fit_sigma2, rel=1e-6)
+    assert state.strength == 1.0
+
+
+def test_apply_at_the_fit_is_the_identity_and_leaves_the_source_alone(analysed):
+    bpy, mat, src = analysed
+    before = _sha(src)
+    assert bpy.ops.brdf_moments.apply_edit(material="Rough") == {"FINISHED"}
+    state = mat.brdf_moments
+    assert os.path.isfile(state.edited_path) and not os.path.samefile(state.edited_path, src)
+    np.testing.assert_array_equal(read_merl(state.edited_path).rho, read_merl(src).rho)
+    assert _sha(src) == before
+    assert state.achieved_mu_slope == pytest.approx(state.fit_mu_slope, abs=1e-6)
+
+
+def test_apply_energy_strength_and_export_everything(analysed, tmp_path):
+    bpy, mat, src = analysed
+    state = mat.brdf_moments
+    state.strength = 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Rough") == {"FINISHED"}
+    edited = read_merl(state.edited_path)
+    orig = read_merl(src)
+    kd = np.asarray(compute_profiles(orig).kd)[:, None]  # the stored copy is float32
+    # Energy-only edits are exact: the specular part halves, kd stays.
+    on = orig.valid
+    np.testing.assert_allclose(edited.rho[on], (np.minimum(orig.rho, kd) + 0.5 * np.maximum(orig.rho - kd, 0))[on],
+                               rtol=1e-12, atol=1e-15)
+    assert max(state.max_albedo) > 0 and state.edited_profiles() is not None
+    out = tmp_path / "exports"
+    out.mkdir()
+    for what in ("TABLE", "PROFILES", "PLOTS"):
+        assert bpy.ops.brdf_moments.export(what=what, directory=str(out), material="Rough") == {"FINISHED"}
+    names = sorted(os.listdir(out))
+    assert names == ["Rough_edited.binary", "Rough_edited_profiles.png", "Rough_measured_profiles.png",
+                     "Rough_profiles.json"]
+    np.testing.assert_array_equal(read_merl(out / "Rough_edited.binary").rho, edited.rho)
+    data = json.loads((out / "Rough_profiles.json").read_text())
+    assert set(data) == {"material", "source", "measured", "edited"}
+    assert data["measured"]["avg"]["alpha"] == pytest.approx(state.profiles()["avg"]["alpha"], rel=1e-6)
+
+
+def test_export_names_stay_inside_the_folder(analysed, tmp_path):
+    bpy, mat, _ = analysed
+    mat.name = "../../escape"
+    out = tmp_path / "inside"
+    out.mkdir()
+    assert bpy.ops.brdf_moments.export(what="PROFILES", directory=str(out), material=mat.name) == {"FINISHED"}
+    files = os.listdir(out)
+    assert len(files) == 1 and files[0].endswith("_profiles.json") and "/" not in files[0]
+    assert not any(p.name.endswith("_profiles.json") for p in tmp_path.parent.iterdir())
+
+
+@pytest.mark.parametrize("setup, message", [
+    ("unanalysed", "load and analyse a MERL file first"),
+    ("source gone", "source MERL file is missing"),
+])
+def test_apply_errors_are_reports_not_tracebacks(analysed, setup, message):
+    bpy, mat, src = analysed
+    if setup == "unanalysed":
+        mat = bpy.data.materials.new("Empty")
+    else:
+        os.unlink(src)
+    with pytest.raises(RuntimeError) as info:  # bpy.ops turns an ERROR report into RuntimeError
+        bpy.ops.brdf_moments.apply_edit(material=mat.name)
+    assert message in str(info.value)
+    assert "Traceback" not in str(info.value)
+
+
+def test_export_table_before_apply_is_refused(analysed, tmp_path):
+    bpy, mat, _ = analysed
+    with pytest.raises(RuntimeError, match="press Apply"):
+        bpy.ops.brdf_moments.export(what="TABLE", directory=str(tmp_path), material="Rough")
+    assert os.listdir(tmp_path) == ["rough.binary"]
+
+
+class _Recorder:
+    """A stand-in for bpy's UILayout that checks what a panel draws: every property it
+    shows must exist on its owner, and every operator it places must be registered."""
+
+    def __init__(self, bpy, log):
+        self.bpy, self.log = bpy, log
+
+    def __getattr__(self, name):
+        if name in ("row", "column", "box", "grid_flow", "split"):
+            return lambda *a, **k: _Recorder(self.bpy, self.log)
+        if name == "prop":
+            def prop(owner, attr, **_):
+                assert attr in owner.bl_rna.properties, attr
+                self.log.append(("prop", attr))
+            return prop
+        if name == "operator":
+            def operator(idname, **_):
+                group, op = idname.split(".")
+                assert hasattr(getattr(self.bpy.ops, group), op) and getattr(getattr(self.bpy.ops, group), op).idname()
+                self.log.append(("operator", idname))
+                return type("Props", (), {})()
+            return operator
+        return lambda *a, **k: self.log.append((name, a, k))
+
+
+def test_panel_draws_every_state_with_real_properties_and_operators(analysed):
+    from importlib import import_module
+
+    bpy, mat, _ = analysed
+    panel = import_module("bl_ext.bmtest.brdf_moments.addon.panel")
+    for step in ("analysed", "edited"):
+        if step == "edited":
+            mat.brdf_moments.strength = 0.9
+            bpy.ops.brdf_moments.apply_edit(material="Rough")
+        log = []
+        panel.draw_material(_Recorder(bpy, log), mat)
+        props = {entry[1] for entry in log if entry[0] == "prop"}
+        assert {"mu_slope", "sigma2", "strength", "colour", "grazing_boost", "lock", "mode"} <= props
+        ops = {entry[1] for entry in log if entry[0] == "operator"}
+        assert {"brdf_moments.apply_edit", "brdf_moments.reset_sliders", "brdf_moments.export"} <= ops
+    assert bpy.types.VIEW3D_PT_brdf_moments.bl_category == "BRDF Moments"
+
+
+def test_every_operator_is_undo_aware(blender):
+    import sys
+
+    reg = sys.modules["bl_ext.bmtest.brdf_moments.addon.registration"]
+    for op in reg.OPERATORS:
+        if op.bl_idname == "brdf_moments.export":
+            continue  # writes files only: nothing in the .blend to undo
+        assert "UNDO" in op.bl_options, op.bl_idname
