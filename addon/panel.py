@@ -69,7 +69,7 @@ def draw_material(layout, mat):
         res.label(text=f"reached μ̃ {state.achieved_mu_slope:+.3f}, σ̃² {state.achieved_sigma2:.4f}")
         res.label(text="largest albedo " + ", ".join(f"{v:.3f}" for v in state.max_albedo),
                   icon="ERROR" if max(state.max_albedo) > 1.0 else "NONE")
-        for warning in filter(None, state.edit_warnings.split("; ")):
+        for warning in filter(None, state.edit_warnings.split("\n")):
             res.label(text=warning, icon="ERROR")
     row = layout.row(align=True)
     for what, icon in (("TABLE", "EXPORT"), ("PROFILES", "TEXT"), ("PLOTS", "IMAGE_DATA")):

@@ -79,10 +79,10 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         state.achieved_mu_slope = finite(res.achieved_mu_slope)
         state.achieved_sigma2 = finite(res.achieved_sigma2)
         state.max_albedo = [finite(v) for v in res.max_albedo]
-        state.edit_warnings = "; ".join(res.warnings)
+        state.edit_warnings = "\n".join(res.warnings)
         plot_image(mat, prof, fit, res.profiles)
         level = {"WARNING"} if res.warnings else {"INFO"}
         msg = (f"{mat.name}: reached μ̃ {state.achieved_mu_slope:+.3f} (target {res.target_mu_slope:+.3f}), "
                f"σ̃² {state.achieved_sigma2:.4f} (target {res.target_sigma2:.4f}), "
                f"largest albedo {max(state.max_albedo):.3f}")
-        self.report(level, msg + ("; " + state.edit_warnings if res.warnings else ""))
+        self.report(level, msg + ("; " + "; ".join(res.warnings) if res.warnings else ""))

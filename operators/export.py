@@ -23,15 +23,16 @@ def _write_png(mat, path, edited):
     """The profile figure with matplotlib where it exists, else the panel's own image."""
     from ..addon.core.atomic import atomic_path
 
+    import importlib.util
+
     state = mat.brdf_moments
-    try:
-        from ..addon.plots import plot_profiles
-    except ImportError:  # Blender builds whose Python has no matplotlib
-        plot_profiles = None
     prof = state.edited_profiles() if edited else state.profiles()
-    if plot_profiles is not None:
+    if importlib.util.find_spec("matplotlib") is not None:
+        from ..addon.plots import plot_profiles
+
         plot_profiles(prof, path, title=f"{mat.name} ({'edited' if edited else 'measured'})")
         return
+    # Blender builds whose Python has no matplotlib (Debian's): the panel's own chart.
     from ..addon.state import plot_image
 
     img = plot_image(mat, edited=state.edited_profiles() if edited else False)

@@ -1,10 +1,8 @@
 #!/usr/bin/env bash
-# Set up, then run the main job on the built-in sample; results go to out/.
+# Set up, then run the main job on the built-in sample through the extension's operators:
+# analyse, edit, export, and render the original | edited preview; results go to out/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-PY=.venv/bin/python
-sample=$($PY -m samples ggx_glossy)
-mkdir -p out
-$PY -m addon profiles "$sample" --out out/ggx_glossy.profiles.json --plot out/ggx_glossy.profiles.png
+.venv/bin/python samples/demo.py --out out "$@"
 echo "demo: done; see out/"

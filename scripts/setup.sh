@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Create .venv with everything the engine, the tests and the bpy module need.
+# Set up everything: .venv with the engine, the tests and the bpy module; the scipy wheel
+# the extension bundles; and Debian's blender for the `blender -b` test lane.
 # Idempotent: a second run only checks. Needs Python 3.11 (bpy 4.5 wheels are cp311).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,4 +21,34 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     .venv/bin/python -m pip install -q --upgrade pip
     .venv/bin/python -m pip install -q -r requirements.txt
     echo "$want" > "$stamp"
+fi
+
+# The wheels the manifest lists (bundled into the extension zip by scripts/package.py).
+.venv/bin/python - <<'PYEOF'
+import os, subprocess, sys, tomllib
+with open("blender_manifest.toml", "rb") as fh:
+    wheels = tomllib.load(fh).get("wheels", [])
+for wheel in wheels:
+    if os.path.isfile(wheel):
+        continue
+    name = os.path.basename(wheel)
+    dist, version = name.split("-")[:2]
+    print(f"setup: fetching {name}", file=sys.stderr)
+    subprocess.run([sys.executable, "-m", "pip", "download", "-q", "--only-binary=:all:", "--no-deps",
+                    "--platform", "manylinux_2_28_x86_64", "--python-version", "3.11",
+                    "-d", os.path.dirname(wheel), f"{dist}=={version}"], check=True)
+    if not os.path.isfile(wheel):
+        sys.exit(f"setup: pip fetched another file than {name}; update the manifest's wheels")
+PYEOF
+
+# Debian's Blender 3.4 (no OSL) runs the second test lane, as a legacy add-on.
+if ! command -v blender >/dev/null 2>&1; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "setup: installing Debian's blender for the blender -b lane (about a minute)" >&2
+        export DEBIAN_FRONTEND=noninteractive
+        apt-get update -qq >/dev/null
+        apt-get install -y -qq --no-install-recommends blender python3-numpy python3-scipy >/dev/null
+    else
+        echo "setup: no blender and no root apt-get: the blender -b test lane cannot run here" >&2
+    fi
 fi

@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
-# Set up, then run the whole test suite.
+# Set up, then run the whole test suite: the engine, lane 1 (the bpy 4.5 module, the
+# repository loaded as an extension), lane 2 (Debian's blender -b 3.4, the packaged
+# legacy add-on) and the stress suite. Both Blender lanes must run: a missing one fails.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export BRDF_MOMENTS_CACHE=${BRDF_MOMENTS_CACHE:-$PWD/.cache/engine}
+export BRDF_MOMENTS_REQUIRE_LANES=1
 .venv/bin/python -m pytest -q tests "$@"
