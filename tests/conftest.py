@@ -37,3 +37,43 @@ def sample_table():
 @pytest.fixture(scope="session")
 def views():
     return np.radians(np.arange(0.0, 90.0, 1.0))
+
+
+@pytest.fixture(scope="session")
+def blender(tmp_path_factory):
+    """The bpy module with this repository enabled as an extension (bl_ext.bmtest.brdf_moments).
+
+    Session-wide: an extension repository can be added once per process."""
+    os.environ.setdefault("BLENDER_USER_RESOURCES", str(tmp_path_factory.mktemp("blender-user")))
+    import bpy  # bpy first: it puts addon_utils on the path
+
+    repo = tmp_path_factory.mktemp("ext-repo")
+    os.symlink(ROOT, repo / "brdf_moments")
+    bpy.context.preferences.extensions.repos.new(name="bmtest", module="bmtest", custom_directory=str(repo),
+                                                 source="USER")
+    import addon_utils
+
+    addon_utils.enable("bl_ext.bmtest.brdf_moments", default_set=True)
+    assert hasattr(bpy.types.Material, "brdf_moments")
+    yield bpy
+    addon_utils.disable("bl_ext.bmtest.brdf_moments", default_set=True)
+
+
+@pytest.fixture
+def fresh(blender):
+    """An empty scene (read_factory_settings would disable the extension)."""
+    blender.ops.wm.read_homefile(use_empty=True)
+    return blender
+
+
+@pytest.fixture(scope="session")
+def stress_log():
+    """Outcomes of the stress cases, by category; written as JSON at the end of the session
+    when BRDF_MOMENTS_STRESS_SUMMARY names a file (scripts/stress_report.py does)."""
+    from _stress import StressLog
+
+    log = StressLog()
+    yield log
+    target = os.environ.get("BRDF_MOMENTS_STRESS_SUMMARY")
+    if target:
+        log.write(target)

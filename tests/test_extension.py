@@ -11,29 +11,6 @@ import pytest
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-@pytest.fixture(scope="module")
-def blender(tmp_path_factory):
-    os.environ.setdefault("BLENDER_USER_RESOURCES", str(tmp_path_factory.mktemp("blender-user")))
-    import bpy  # bpy first: it puts addon_utils on the path
-
-    repo = tmp_path_factory.mktemp("ext-repo")
-    os.symlink(ROOT, repo / "brdf_moments")
-    bpy.context.preferences.extensions.repos.new(name="bmtest", module="bmtest", custom_directory=str(repo),
-                                                 source="USER")
-    import addon_utils
-
-    addon_utils.enable("bl_ext.bmtest.brdf_moments", default_set=True)
-    assert hasattr(bpy.types.Material, "brdf_moments")
-    yield bpy
-    addon_utils.disable("bl_ext.bmtest.brdf_moments", default_set=True)
-
-
-@pytest.fixture
-def fresh(blender):
-    blender.ops.wm.read_homefile(use_empty=True)
-    return blender
-
-
 def test_manifest_passes_blenders_validator(blender):
     import sysconfig
 
