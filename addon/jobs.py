@@ -71,8 +71,13 @@ class BackgroundJob:
             return {"CANCELLED"}
         return self._complete(context, result)
 
+    @staticmethod
+    def has_window(context) -> bool:
+        wm = context.window_manager
+        return not bpy.app.background and wm is not None and bool(wm.windows) and context.window is not None
+
     def invoke(self, context, event):
-        if context.window_manager is None or not context.window_manager.windows or bpy.app.background:
+        if not self.has_window(context):
             return self.execute(context)
         work = self._prepare(context)
         if work is None:

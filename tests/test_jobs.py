@@ -1,0 +1,151 @@
+"""The threaded job runner behind Analyse and Apply, driven the way Blender drives a modal
+operator (timer events, Esc), with stand-ins for the window manager: the bpy module has
+no window, so this is where progress, cancel and error reporting are checked."""
+
+import threading
+import time
+
+import pytest
+
+
+class _WM:
+    def __init__(self):
+        self.progress, self.timers, self.handlers, self.windows = [], 0, [], [object()]
+
+    def event_timer_add(self, step, window=None):
+        self.timers += 1
+        return object()
+
+    def event_timer_remove(self, timer):
+        self.timers -= 1
+
+    def progress_begin(self, lo, hi):
+        self.progress.append(("begin", lo, hi))
+
+    def progress_update(self, value):
+        self.progress.append(value)
+
+    def progress_end(self):
+        self.progress.append("end")
+
+    def modal_handler_add(self, op):
+        self.handlers.append(op)
+
+
+class _Workspace:
+    def __init__(self):
+        self.status = []
+
+    def status_text_set(self, text):
+        self.status.append(text)
+
+
+class _Context:
+    def __init__(self):
+        self.window_manager, self.workspace, self.window = _WM(), _Workspace(), object()
+
+
+class _Event:
+    def __init__(self, type_, value="NOTHING"):
+        self.type, self.value = type_, value
+
+
+@pytest.fixture
+def job_class(blender):
+    import sys
+
+    jobs = sys.modules["bl_ext.bmtest.brdf_moments.addon.jobs"]
+
+    class Job(jobs.BackgroundJob):
+        job_label = "Testing"
+
+        def __init__(self, work):
+            self.work, self.reports, self.finished_with = work, [], None
+
+        @staticmethod
+        def has_window(context):
+            return True
+
+        def report(self, level, text):
+            self.reports.append((set(level), text))
+
+        def start(self, context):
+            return self.work
+
+        def finish(self, context, result):
+            self.finished_with = result
+
+    return Job
+
+
+def _drive(op, ctx, until=10.0, esc_after=None):
+    """Send timer events (and an Esc) until the operator leaves the modal state."""
+    t0 = time.monotonic()
+    sent_esc = False
+    while time.monotonic() - t0 < until:
+        if esc_after is not None and not sent_esc and esc_after():
+            op.modal(ctx, _Event("ESC", "PRESS"))
+            sent_esc = True
+        state = op.modal(ctx, _Event("TIMER"))
+        if "RUNNING_MODAL" not in state:
+            return state
+        time.sleep(0.01)
+    raise AssertionError("the job never finished")
+
+
+def test_progress_reaches_the_status_bar_and_the_result_is_written_back(job_class):
+    gate = threading.Event()
+
+    def work(report_progress):
+        for k in range(1, 5):
+            report_progress(k, 4)
+            if k == 2:
+                gate.wait(5)  # hold at 50 % until the test has seen it
+        return "done"
+
+    op, ctx = job_class(work), _Context()
+    assert op.invoke(ctx, _Event("NONE")) == {"RUNNING_MODAL"}
+    assert ctx.window_manager.handlers == [op] and ctx.window_manager.timers == 1
+    for _ in range(500):
+        op.modal(ctx, _Event("TIMER"))
+        if 500 in ctx.window_manager.progress:
+            break
+        time.sleep(0.01)
+    assert 500 in ctx.window_manager.progress
+    assert any(s and "Testing 50 %" in s and "Esc to cancel" in s for s in ctx.workspace.status)
+    gate.set()
+    assert _drive(op, ctx) == {"FINISHED"}
+    assert op.finished_with == "done"
+    assert ctx.window_manager.timers == 0 and ctx.window_manager.progress[-1] == "end"
+    assert ctx.workspace.status[-1] is None  # the status bar is given back
+
+
+def test_esc_cancels_and_changes_nothing(job_class):
+    started = threading.Event()
+
+    def work(report_progress):
+        started.set()
+        for k in range(10_000):
+            report_progress(k, 10_000)  # raises once cancelled
+            time.sleep(0.001)
+        return "should not get here"
+
+    op, ctx = job_class(work), _Context()
+    op.invoke(ctx, _Event("NONE"))
+    assert _drive(op, ctx, esc_after=started.is_set) == {"CANCELLED"}
+    assert op.finished_with is None
+    assert op.reports and op.reports[-1][0] == {"WARNING"} and "cancelled" in op.reports[-1][1]
+    assert ctx.window_manager.timers == 0
+
+
+@pytest.mark.parametrize("exc, expect", [(ValueError("x.binary: too short"), "x.binary: too short"),
+                                         (RuntimeError("boom"), "RuntimeError: boom")])
+def test_errors_in_the_worker_become_reports(job_class, exc, expect):
+    def work(report_progress):
+        raise exc
+
+    op, ctx = job_class(work), _Context()
+    op.invoke(ctx, _Event("NONE"))
+    assert _drive(op, ctx) == {"CANCELLED"}
+    assert op.reports == [({"ERROR"}, expect)]
+    assert op.finished_with is None
