@@ -184,16 +184,10 @@ class SliceSamples:
         return frac, np.where(ok, mt, mu_new[:, 0]), np.where(ok, vt, 0.0), np.where(ok, vp, 0.0)
 
 
-def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target, iters=40):
-    """Per view: (mu_new, k_theta, k_phi, kept fraction), and whether the targets were reached.
-
-    Fixed-point steps on the clipped warp's moments, all views at once, starting from the
-    unclipped answer (so targets equal to the measured moments give the identity map). Where
-    clipping puts a target out of reach the steps run away (a wider lobe loses more mass,
-    which makes it narrower again), so the map stays within a factor 4 of the unclipped
-    answer and half a radian of it, and each view keeps its closest iterate.
-    """
-    mu_target, var_t_target, var_p_target = (np.asarray(a, float) for a in (mu_target, var_t_target, var_p_target))
+def _warp_fixed_point(samples, mu_target, var_t_target, var_p_target, iters):
+    """Fixed-point steps on the clipped warp's moments, all views at once, from the
+    unclipped answer (so the measured moments as targets give the identity map). Bounded
+    to a factor 4 and half a radian around that start; each view keeps its closest iterate."""
     m0 = samples.mu + (mu_target - samples.base_mean)
     kt0 = np.sqrt(var_t_target / np.maximum(samples.base_var_t, 1e-300))
     kp0 = np.sqrt(var_p_target / np.maximum(samples.base_var_p, 1e-300))
@@ -204,7 +198,6 @@ def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target, ite
         with np.errstate(divide="ignore", invalid="ignore"):
             lt = np.log(np.where(vt > 0, vt, np.nan) / var_t_target)
             lp = np.log(np.where(vp > 0, vp, np.nan) / var_p_target)
-        # The mean is what the slope slider moves: it weighs most where not all can be met.
         r = np.stack([(mt - mu_target) / 0.002, lt / 0.02, lp / 0.02], axis=1)
         score = np.nan_to_num((r ** 2).sum(axis=1), nan=np.inf)
         if best is None:
@@ -221,6 +214,40 @@ def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target, ite
     _, m, kt, kp, frac, r = best
     reached = (np.abs(r[:, 0]) < 2.5) & np.all(np.abs(r[:, 1:]) < 0.5, axis=1)  # 0.005 rad, 1 % variances
     return np.stack([m, kt, kp, np.maximum(frac, 0.25)], axis=1), reached  # gain capped at 4x
+
+
+def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target, iters=30, halvings=7):
+    """Per view: (mu_new, k_theta, k_phi, kept fraction), and whether the targets were reached.
+
+    Where clipping puts a view's targets out of reach (a wider lobe near the horizon loses
+    mass there, which makes it narrower again), the variance gives way, never the mean: a
+    bisection finds the largest variance scale that the clipped warp reaches. Taking the
+    closest iterate instead made the result jump as the sliders moved, which the outer loop
+    (and a user dragging a slider) cannot follow.
+    """
+    mu_target, var_t_target, var_p_target = (np.asarray(a, float) for a in (mu_target, var_t_target, var_p_target))
+    params, reached = _warp_fixed_point(samples, mu_target, var_t_target, var_p_target, iters)
+    if reached.all():
+        return params, reached
+    todo = ~reached
+    lo = np.full(len(todo), -6.0)  # log variance scale; e^-6 narrows any lobe enough to fit
+    hi = np.zeros(len(todo))       # scale 1: out of reach
+    found = np.zeros(len(todo), bool)
+    for _ in range(halvings):
+        mid = 0.5 * (lo + hi)
+        scale = np.exp(np.where(todo, mid, 0.0))
+        p, ok = _warp_fixed_point(samples, mu_target, var_t_target * scale, var_p_target * scale, iters)
+        take = todo & ok
+        params[take] = p[take]
+        found |= take
+        lo = np.where(take, mid, lo)
+        hi = np.where(todo & ~ok, mid, hi)
+    rest = todo & ~found
+    if rest.any():
+        scale = np.exp(np.where(rest, lo, 0.0))
+        p, _ = _warp_fixed_point(samples, mu_target, var_t_target * scale, var_p_target * scale, iters)
+        params[rest] = p[rest]
+    return params, reached
 
 
 # --- model mode ------------------------------------------------------------------------------
