@@ -128,7 +128,11 @@ def write_text_atomic(text, path):
 
 def safe_output_name(name: str) -> str:
     """A material name as a file name that cannot leave the output folder."""
+    from .core.names import MAX_NAME_BYTES
+
     cleaned = "".join(c if c.isalnum() or c in "-_.+" else "_" for c in name).lstrip(".")
+    while len(cleaned.encode("utf-8")) > MAX_NAME_BYTES:  # room for ".json" under the 255-byte limit
+        cleaned = cleaned[:-1]
     return cleaned or "material"
 
 
