@@ -102,9 +102,15 @@ def assert_profiles_sane(prof):
 
 
 def run_cli(*args, cwd=ROOT, timeout=300):
-    """``python -m addon ...`` as a subprocess: arguments as a list, never through a shell."""
+    """``python -m addon ...`` as a subprocess: arguments as a list, never through a shell.
+
+    From another ``cwd`` (to see what a command would create there) the repository goes on
+    PYTHONPATH so that ``-m addon`` still finds the package."""
+    env = dict(os.environ)
+    if os.path.abspath(cwd) != ROOT:
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [ROOT, env.get("PYTHONPATH")]))
     return subprocess.run([sys.executable, "-m", "addon", *map(str, args)], cwd=cwd, capture_output=True, text=True,
-                          env=dict(os.environ), timeout=timeout)
+                          env=env, timeout=timeout)
 
 
 def assert_one_line_error(res, *fragments, progress=None):
