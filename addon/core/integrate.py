@@ -106,8 +106,14 @@ def _build_view(theta_o, params):
     lx = x - cen[inv, 0].astype(float)
     lp = rule.phi - cen[inv, 1].astype(float)
     local = np.empty((len(uniq), n_monomials(MAX_ORDER) - 1), dtype=np.float32)
-    for j, (n, m) in enumerate(exponents(MAX_ORDER)[1:]):
-        local[:, j] = np.bincount(inv, weights=rule.weight * lx ** n * lp ** m, minlength=len(uniq))
+    xp = rule.weight.copy()
+    for n in range(MAX_ORDER + 1):
+        wp = xp.copy()
+        for m in range(MAX_ORDER + 1 - n):
+            if n or m:
+                local[:, exponents(MAX_ORDER).index((n, m)) - 1] = np.bincount(inv, weights=wp, minlength=len(uniq))
+            wp *= lp
+        xp *= lx
     return uniq.astype(np.int32), agg, alb.astype(np.float32), cen, local
 
 
@@ -157,13 +163,12 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
     if os.path.isdir(folder):
         op = _load_operator(folder)
     if op is None:
+        # Stream each view's part into the cache as it is built and map the result back:
+        # holding all views in memory (let alone concatenating them) would dominate the peak.
+        op = _build_into_cache(theta_o, params, folder, progress)
+    if op is None:  # the cache cannot be written: build in memory
         parts, offsets = _build_chunks(theta_o, params, progress)
-        # Stream the chunks into the cache and map them back: concatenating in memory would
-        # hold the operator twice at the peak.
-        if _save_operator(theta_o, offsets, parts, folder):
-            op = _load_operator(folder)
-        if op is None:
-            op = SliceOperator(theta_o, offsets, **{k: np.concatenate(v) for k, v in parts.items()})
+        op = SliceOperator(theta_o, offsets, **{k: np.concatenate(v) for k, v in parts.items()})
         del parts
     if not memo:
         _SMALL[key] = op
@@ -193,36 +198,48 @@ def _load_operator(folder):
     return SliceOperator(theta_o, offsets, **parts)
 
 
-def _write_npy_chunks(path, chunks, dtype, shape):
-    with open(path, "wb") as fh:
-        np.lib.format.write_array_header_2_0(fh, {"descr": np.dtype(dtype).str, "fortran_order": False,
-                                                  "shape": shape})
-        for c in chunks:
-            fh.write(np.ascontiguousarray(c, dtype=dtype).tobytes())
-
-
-def _save_operator(theta_o, offsets, parts, folder) -> bool:
-    """Write the cache folder atomically (temp folder, then rename). False if unwritable."""
+def _build_into_cache(theta_o, params, folder, progress):
+    """Build view by view into a temporary folder next to ``folder``, then rename it into
+    place; returns the memory-mapped operator, or None if the cache cannot be written."""
     parent = os.path.dirname(folder)
     try:
         os.makedirs(parent, exist_ok=True)
         tmp = tempfile.mkdtemp(prefix=".tmp-op-", dir=parent)
     except OSError:
-        return False  # an unwritable cache only costs time
+        return None  # an unwritable cache only costs time
     try:
-        n = int(offsets[-1])
+        raw = {k: open(os.path.join(tmp, f"{k}.raw"), "wb") for k in _PARTS}
+        counts = []
+        try:
+            for k, t in enumerate(theta_o):
+                arrays = _build_view(float(t), params)
+                for name, arr in zip(_PARTS, arrays):
+                    raw[name].write(np.ascontiguousarray(arr, dtype=_PART_LAYOUT[name][0]).tobytes())
+                counts.append(len(arrays[0]))
+                del arrays
+                if progress:
+                    progress(k + 1, len(theta_o))
+        finally:
+            for fh in raw.values():
+                fh.close()
+        offsets = np.concatenate(([0], np.cumsum(counts))).astype(np.int64)
         np.save(os.path.join(tmp, "theta_o.npy"), theta_o)
         np.save(os.path.join(tmp, "offsets.npy"), offsets)
-        for k, (dtype, tail) in _PART_LAYOUT.items():
-            _write_npy_chunks(os.path.join(tmp, f"{k}.npy"), parts[k], dtype, (n,) + tail)
+        for name, (dtype, tail) in _PART_LAYOUT.items():
+            src = os.path.join(tmp, f"{name}.raw")
+            with open(os.path.join(tmp, f"{name}.npy"), "wb") as out, open(src, "rb") as fh:
+                np.lib.format.write_array_header_2_0(out, {"descr": np.dtype(dtype).str, "fortran_order": False,
+                                                           "shape": (int(offsets[-1]),) + tail})
+                shutil.copyfileobj(fh, out, 1 << 24)
+            os.unlink(src)
         if os.path.isdir(folder):  # another process won the race; keep theirs
             shutil.rmtree(tmp, ignore_errors=True)
         else:
             os.replace(tmp, folder)
-        return True
     except OSError:
         shutil.rmtree(tmp, ignore_errors=True)
-        return False
+        return None
+    return _load_operator(folder)
 
 
 def table_sums(op: SliceOperator, values: np.ndarray, max_order: int = MAX_ORDER) -> np.ndarray:
