@@ -209,8 +209,6 @@ def test_edits_at_the_extremes_give_valid_tables_or_clear_errors(glossy, stress_
     stress_log.record("full edits at the slider limits", "clamped" if res.warnings else "valid", name)
 
 
-@pytest.mark.xfail(strict=True, reason="edit owner: a mirror-like target (sigma2 -> 0) loses the specular energy "
-                                       "at some views (alpha(45 deg) = 0 for ggx_glossy) without any warning")
 def test_a_needle_edit_keeps_the_energy_or_says_it_cannot(glossy):
     _, prof, _ = glossy
     res = _edit(glossy, "mirror", dict(EXTREMES)["mirror"])

@@ -434,9 +434,41 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     if abs(f["mu_slope"] - mu_t) >= 0.01 or abs(f["sigma2"] / s2_t - 1.0) >= 0.02:
         warnings.append(f"target not reachable for a reciprocal table: reached mean slope {f['mu_slope']:+.3f} "
                         f"(target {mu_t:+.3f}) and variance {f['sigma2']:.4g} (target {s2_t:.4g})")
+    energy_note = _energy_check(new_prof, target_energy(prof, fit, targets))
+    if energy_note:
+        warnings.append(energy_note)
     res = _finish(out, targets, mu_t, s2_t, warnings, prof, remeasure=False)
     res.achieved_mu_slope, res.achieved_sigma2, res.profiles = f["mu_slope"], f["sigma2"], new_prof
     return res
+
+
+def cell_variance_floor(theta_o, mean):
+    """Per view, the smallest lobe variance a nearest-cell table can hold at that lobe centre.
+
+    A cell's value is the lobe at the cell centre, so a lobe that falls between centres
+    vanishes from the table. Near the lobe, moving the lit direction by d(theta) moves the
+    half vector by d(theta)/2, and MERL's theta_h cells are square-root spaced: 2e-4 rad at
+    the mirror, 0.035 rad at the pole. Half a cell width as the floor on sigma keeps a
+    centre within one sigma of any lobe."""
+    theta_h = np.clip(np.abs(np.asarray(theta_o, float) + np.asarray(mean, float)) / 2.0, 0.0, HALF_PI)
+    step_h = np.maximum(2.0 * np.sqrt(theta_h / HALF_PI) * HALF_PI / 90.0, HALF_PI / 90.0 ** 2)
+    return (0.5 * 2.0 * step_h) ** 2
+
+
+def _energy_check(new_prof, alpha_target, tolerance=0.2):
+    """A warning when the re-measured energy strays from the sliders' by more than 20 % at
+    some view (lobes at the scale of the table's cells, or clipped away at the horizon)."""
+    got = np.stack([np.nan_to_num(np.asarray(new_prof[c]["alpha"], float)) for c in "rgb"], axis=1)
+    want = np.asarray(alpha_target, float)
+    meaningful = want > 1e-6 * max(float(want.max(initial=0.0)), 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = np.where(meaningful, np.abs(got / want - 1.0), 0.0)
+    bad = (off > tolerance).any(axis=1)
+    if not bad.any():
+        return None
+    deg = np.degrees(np.asarray(new_prof.theta_o, float)[bad])
+    return (f"energy not held at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): off by up to "
+            f"{100 * off.max():.0f} % (lobe at the scale of the table's cells, or clipped at the horizon)")
 
 
 def synthesize(table, targets, prof, fit, view_targets=None, values=None, samples=None):
@@ -454,6 +486,12 @@ def synthesize(table, targets, prof, fit, view_targets=None, values=None, sample
         mu_t, s2_t, _ = resolve_targets(targets, fit)
         view_targets = view_goals(prof, fit, targets.mode, mu_t, s2_t) + (1.0,)
     goal_mean, goal_vt, goal_vp, energy_gain = view_targets
+    floor = cell_variance_floor(theta, goal_mean)
+    narrow = (goal_vt < floor) | (goal_vp < floor)
+    if narrow.any():
+        notes.append(f"a lobe narrower than the table's cells cannot be tabulated: variance raised to the cell "
+                     f"size at {int(narrow.sum())} view(s) (down to {floor[narrow].min():.2g} rad²)")
+        goal_vt, goal_vp = np.maximum(goal_vt, floor), np.maximum(goal_vp, floor)
     alpha_new = target_energy(prof, fit, targets) * energy_gain  # (views, 3)
     p = prof["avg"]
     if targets.mode == "warp":
