@@ -1,0 +1,156 @@
+"""The preview scene in Blender: camera, a row of spheres, the world, render settings.
+
+Mirrors ``addon.core.render.scene``: an orthographic camera looking along +y, unit spheres at
+z = 0 placed so each covers a pixel-aligned square of ``layout.diameter`` pixels. Spheres are
+seen by camera rays only (no shadows or reflections of each other): the numpy reference
+renders them the same way.
+"""
+
+from __future__ import annotations
+
+import math
+
+import bmesh
+import bpy
+
+COLLECTION = "BRDF Moments Preview"
+CAMERA = "BRDFM Camera"
+SPHERE_MESH = "BRDFM Sphere"
+WORLD = "BRDFM World"
+
+
+def ensure_collection(scene):
+    coll = bpy.data.collections.get(COLLECTION)
+    if coll is None:
+        coll = bpy.data.collections.new(COLLECTION)
+    if coll.name not in scene.collection.children:
+        scene.collection.children.link(coll)
+    return coll
+
+
+def _link(obj, coll):
+    if obj.name not in coll.objects:
+        coll.objects.link(obj)
+
+
+def ensure_camera(scene, layout):
+    coll = ensure_collection(scene)
+    cam = bpy.data.objects.get(CAMERA)
+    if cam is None or cam.type != "CAMERA":
+        data = bpy.data.cameras.new(CAMERA)
+        cam = bpy.data.objects.new(CAMERA, data)
+    _link(cam, coll)
+    cam.data.type = "ORTHO"
+    cam.data.sensor_fit = "HORIZONTAL"
+    cam.data.ortho_scale = layout.ortho_scale
+    cam.data.shift_x = cam.data.shift_y = 0.0
+    cam.data.clip_start, cam.data.clip_end = 0.1, 100.0
+    cam.location = (0.0, -10.0, 0.0)
+    cam.rotation_mode = "XYZ"
+    cam.rotation_euler = (math.pi / 2, 0.0, 0.0)
+    scene.camera = cam
+    return cam
+
+
+def sphere_mesh():
+    mesh = bpy.data.meshes.get(SPHERE_MESH)
+    if mesh is None:
+        mesh = bpy.data.meshes.new(SPHERE_MESH)
+        bm = bmesh.new()
+        try:
+            # Fine facets keep the silhouette round; shading uses the exact normal anyway.
+            bmesh.ops.create_uvsphere(bm, u_segments=128, v_segments=64, radius=1.0)
+            bm.to_mesh(mesh)
+        finally:
+            bm.free()
+        mesh.polygons.foreach_set("use_smooth", [True] * len(mesh.polygons))
+        mesh.update()
+    return mesh
+
+
+def sphere_name(k):
+    return f"BRDFM Sphere {k}"
+
+
+def ensure_spheres(scene, layout):
+    """Objects for spheres 0..count-1 at their layout positions; extra old ones are removed."""
+    coll = ensure_collection(scene)
+    mesh = sphere_mesh()
+    objs = []
+    for k in range(layout.count):
+        obj = bpy.data.objects.get(sphere_name(k))
+        if obj is None or obj.type != "MESH":
+            obj = bpy.data.objects.new(sphere_name(k), mesh)
+        _link(obj, coll)
+        obj.location = (layout.centre_x(k), 0.0, 0.0)
+        obj.rotation_euler = (0.0, 0.0, 0.0)
+        obj.scale = (1.0, 1.0, 1.0)
+        obj.hide_render = False
+        for ray in ("visible_diffuse", "visible_glossy", "visible_transmission", "visible_volume_scatter",
+                    "visible_shadow"):
+            if hasattr(obj, ray):
+                setattr(obj, ray, False)
+        objs.append(obj)
+    k = layout.count
+    while bpy.data.objects.get(sphere_name(k)) is not None:
+        bpy.data.objects.remove(bpy.data.objects[sphere_name(k)])
+        k += 1
+    return objs
+
+
+def assign_material(obj, mat):
+    if len(obj.data.materials) == 0:
+        obj.data.materials.append(None)   # one slot on the shared mesh; each object links its own
+    slot = obj.material_slots[0]
+    slot.link = "OBJECT"
+    slot.material = mat
+
+
+def ensure_world(scene, env_path, strength=1.0):
+    """World = the equirectangular map (texels constant: 'Closest', as the engine assumes)."""
+    world = bpy.data.worlds.get(WORLD) or bpy.data.worlds.new(WORLD)
+    world.use_nodes = True
+    nt = world.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputWorld")
+    bg = nt.nodes.new("ShaderNodeBackground")
+    bg.inputs["Strength"].default_value = float(strength)
+    tex = nt.nodes.new("ShaderNodeTexEnvironment")
+    tex.image = bpy.data.images.load(env_path, check_existing=True)
+    tex.interpolation = "Closest"
+    tex.projection = "EQUIRECTANGULAR"
+    nt.links.new(tex.outputs["Color"], bg.inputs["Color"])
+    nt.links.new(bg.outputs["Background"], out.inputs["Surface"])
+    scene.world = world
+    return world
+
+
+def configure_render(scene, layout, path, samples=16, engine="CYCLES"):
+    """Render settings that make Cycles show what the engine computes: box filter one pixel
+    wide (a pixel is its area average), no denoiser, no adaptive stopping, standard view."""
+    r = scene.render
+    r.resolution_x, r.resolution_y, r.resolution_percentage = layout.width, layout.height, 100
+    r.pixel_aspect_x = r.pixel_aspect_y = 1.0
+    r.film_transparent = True
+    r.engine = engine
+    if hasattr(r, "dither_intensity"):
+        r.dither_intensity = 0.0
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+    c = scene.cycles
+    c.device = "CPU"
+    c.samples = int(samples)
+    c.use_denoising = False
+    c.use_adaptive_sampling = False
+    c.pixel_filter_type = "BOX"
+    c.filter_width = 1.0
+    c.seed = 0
+    c.shading_system = path == "osl"
+    # camera rays see the spheres; the diffuse closure needs one bounce to reach the world
+    c.max_bounces = 1 if path == "osl" else 0
+    c.diffuse_bounces = 1 if path == "osl" else 0
+    c.glossy_bounces = c.transmission_bounces = c.volume_bounces = c.transparent_max_bounces = 0
+    if hasattr(c, "use_light_tree"):
+        c.use_light_tree = True
