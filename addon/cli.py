@@ -172,6 +172,12 @@ def cmd_edit(args):
     return 0
 
 
+def cmd_render(args):
+    from .render_command import run
+
+    return run(args, InputError)
+
+
 def cmd_bench(args):
     from . import bench
 
@@ -217,6 +223,21 @@ def build_parser():
     se.add_argument("--sigma2", type=_finite, help="target average variance in (0, pi^2/12]")
     se.add_argument("--mode", choices=("warp", "model"), default="warp")
     se.set_defaults(func=cmd_edit)
+
+    sr = sub.add_parser("render", help="original (and edited) spheres rendered by Cycles (needs the bpy module)")
+    sr.add_argument("file", help="MERL .binary file (the original)")
+    sr.add_argument("--edited", help="edited MERL .binary file, shown to the right")
+    sr.add_argument("--env", help="bundled HDRI name (default studio) or an .exr/.hdr path")
+    sr.add_argument("--path", choices=("auto", "osl", "baked"), default="auto",
+                    help="osl (Cycles with OSL), baked (numpy radiance, any engine) or auto")
+    sr.add_argument("--mode", choices=("tabulated", "model"), default="tabulated",
+                    help="OSL mode: the table itself, or its fitted moment model")
+    sr.add_argument("--size", type=_positive_int, default=256, help="image width and height in pixels (256)")
+    sr.add_argument("--samples", type=_positive_int, default=16, help="Cycles samples per pixel (16)")
+    sr.add_argument("--lobe-samples", type=_positive_int, default=16, help="OSL directions per shading point (16)")
+    sr.add_argument("--bake-samples", type=_positive_int, default=64, help="baked path directions per texel (64)")
+    sr.add_argument("--out", required=True, help="output .png (display-referred) or .exr (linear radiance)")
+    sr.set_defaults(func=cmd_render)
 
     sb = sub.add_parser("bench", help="benchmark tables (run time against error)")
     sb.add_argument("--quick", action="store_true", help="fewer repetitions and views")
