@@ -18,13 +18,13 @@ Public API
 from .cache import BakeCache, bake_key
 from .envmap import Environment, direction_to_uv, uv_to_direction
 from .estimators import bake_sphere, reference_sphere, relative_rmse, render_baked, render_reference
-from .lobe import (LobeTable, ModelBRDF, MomentParams, TableBRDF, make_brdf, truncated_params, truncnorm_moments,
-                   truncnorm_pdf, truncnorm_sample)
+from .lobe import (LobeTable, ModelBRDF, MomentParams, TableBRDF, make_brdf, truncated_params, truncnorm_mass,
+                   truncnorm_moments, truncnorm_pdf, truncnorm_sample)
 from .scene import VIEW, Layout, interior_texels, local_frames, sphere_layout, sphere_points
 
 __all__ = [
     "BakeCache", "bake_key", "Environment", "direction_to_uv", "uv_to_direction", "bake_sphere", "reference_sphere",
     "relative_rmse", "render_baked", "render_reference", "LobeTable", "ModelBRDF", "MomentParams", "TableBRDF",
-    "make_brdf", "truncated_params", "truncnorm_moments", "truncnorm_pdf", "truncnorm_sample", "VIEW", "Layout",
+    "make_brdf", "truncated_params", "truncnorm_mass", "truncnorm_moments", "truncnorm_pdf", "truncnorm_sample", "VIEW", "Layout",
     "interior_texels", "local_frames", "sphere_layout", "sphere_points",
 ]

@@ -107,25 +107,23 @@ class Environment:
         return p[idx] / omega[idx]
 
     # --- lights and the rest ------------------------------------------------------------------
-    def split(self, share=0.8, max_texels=8192):
-        """(bright, residual): the fewest brightest texels holding ``share`` of the energy
-        (at most ``max_texels``), as a ``BrightTexels`` sampler, and a copy of the map with
-        them set to zero. Small bright lights are where prefiltering goes wrong and lobe
-        sampling is noisy; sampled on their own they are neither."""
+    def split(self, contrast=2.0):
+        """(bright, residual): the map clamped at ``contrast`` times its mean luminance (the
+        residual: continuous, at most that bright, so prefiltering it is nearly unbiased) and
+        the excess above the clamp (``BrightTexels``: small bright lights, sampled on their
+        own; prefiltering them would smear them and lobe sampling finds them rarely).
+        residual + bright = the map, texel by texel."""
         if self._split is None:
-            lum = self.flat @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+            lum = (self.flat @ np.array([0.2126, 0.7152, 0.0722], np.float32)).astype(float)
             omega = np.repeat(self.row_omega, self.width)
-            energy = lum * omega
-            total = float(energy.sum())
-            top = np.argsort(-energy)[:max_texels]
-            if total > 0:
-                keep = top[:int(np.searchsorted(np.cumsum(energy[top]) / total, share)) + 1]
-            else:
-                keep = top[:0]
-            rest = self.pixels.copy().reshape(-1, 3)
-            rest[keep] = 0.0
-            residual = Environment(rest.reshape(self.pixels.shape), self.name + " (residual)")
-            self._split = (BrightTexels(self, keep, energy[keep]), residual)
+            limit = contrast * float(np.sum(lum * omega)) / (4.0 * math.pi)
+            over = np.flatnonzero(lum > limit) if limit > 0 else np.zeros(0, np.int64)
+            keep = np.ones(lum.size)
+            keep[over] = limit / lum[over]
+            rest = self.flat * keep[:, None].astype(np.float32)
+            excess = self.flat[over] * (1.0 - keep[over, None])
+            residual = Environment(rest.reshape(self.pixels.shape), self.name + " (clamped)")
+            self._split = (BrightTexels(self, over, excess, (lum[over] - limit) * omega[over]), residual)
         return self._split
 
     # --- prefiltered lookups (filtered importance sampling) ---------------------------------
@@ -248,9 +246,10 @@ class Environment:
         return out
 
 class BrightTexels:
-    """A set of texels of a map, sampled by energy, uniformly in solid angle inside each."""
+    """Radiance on a set of texels of a map, sampled by energy, uniformly in solid angle inside
+    each texel."""
 
-    def __init__(self, env, texels, energy):
+    def __init__(self, env, texels, radiance, energy):
         self.env = env
         self.texels = np.asarray(texels, np.int64)
         self.size = len(self.texels)
@@ -262,7 +261,7 @@ class BrightTexels:
         if self.size:
             self.cdf[-1] = 1.0
         self.omega = np.repeat(env.row_omega, env.width)[self.texels]
-        self.radiance = env.flat[self.texels].astype(float)
+        self.radiance = np.asarray(radiance, float).reshape(-1, 3)
 
     def sample(self, u1, u2, u3):
         """(directions, pdf per sr)."""

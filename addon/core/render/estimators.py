@@ -54,13 +54,13 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
 
     radiance is the mean over the covered part of each texel (not premultiplied); coverage
     the covered fraction. Per texel, ``lobe_samples`` directions from the BRDF's sampler and
-    ``light_samples`` (default half as many) from the map's bright texels, each at its own
+    ``light_samples`` (default as many) from the map's bright texels, each at its own
     QMC position in the texel. The map is split (``Environment.split``): the bright texels
     are integrated by multi-sample MIS of both strategies, unfiltered (unbiased); the dim
     rest by the BRDF samples alone with prefiltered lookups (smooth, so nearly unbiased)."""
     d = int(diameter)
     k = int(lobe_samples)
-    kb = max(1, k // 2) if light_samples is None else int(light_samples)
+    kb = k if light_samples is None else int(light_samples)
     if d < 2 or k < 1:
         raise ValueError("need a diameter of at least 2 pixels and at least one sample")
     beta = (0.0 if brdf.kind == "model" else 0.15) if cosine_share is None else float(cosine_share)
@@ -90,7 +90,7 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
         footprint = np.cos(phi) / (k * q)          # sr covered by one of k samples (dw = cos p dt dp)
         g = f * np.where(ok, meas, 0.0)[:, None]
         contrib = g * residual.lookup_filtered(dirs, footprint) / (k * q)[:, None]
-        if kb:
+        if bright.size:
             lb, pb = bright.lookup_pdf(dirs)
             w = k * q + kb * pb * np.cos(phi)      # both densities per d theta d phi
             contrib += g * lb / w[:, None]
@@ -247,11 +247,11 @@ def render_reference(layout, brdfs, env, spp=1024, seed=0):
     return layout.compose(tiles)
 
 
-def render_baked(layout, brdfs, env, lobe_samples=64, seed=0):
+def render_baked(layout, brdfs, env, lobe_samples=64, seed=0, light_samples=None):
     """(H, W, 4) premultiplied RGBA: what the baked path shows (texel = pixel)."""
     tiles = []
     for i, brdf in enumerate(brdfs):
-        rgb, cov = bake_sphere(brdf, env, layout.diameter, lobe_samples, seed + 7919 * i)
+        rgb, cov = bake_sphere(brdf, env, layout.diameter, lobe_samples, seed + 7919 * i, light_samples)
         tiles.append(np.dstack([rgb * cov[..., None], cov]))
     return layout.compose(tiles)
 
