@@ -72,6 +72,15 @@ def script_node(tree, mode: str):
     node.mode = "EXTERNAL"
     node.filepath = compile_shader(SHADERS[mode])
     if "BSDF" not in node.outputs:
+        # Blender queries the shader through the scene's render engine, which may not be
+        # Cycles yet: ask Cycles directly.
+        try:
+            from cycles import osl as cycles_osl
+
+            cycles_osl.update_script_node(node, lambda kind, msg: None)
+        except ImportError:
+            pass
+    if "BSDF" not in node.outputs:
         # Setting the path makes Cycles query the shader; no sockets means it could not.
         raise OSLUnavailable(f"Cycles could not load {node.filepath} (oslquery missing?)")
     node.label = f"BRDF Moments ({mode})"
