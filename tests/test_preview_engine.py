@@ -170,7 +170,10 @@ def test_moment_model_uses_the_solid_angle_measure():
 
 
 def test_bake_agrees_with_the_reference_on_a_glossy_table(sample_table):
-    """Independent estimators of the same integral (QMC + MIS + prefilter against plain MC)."""
+    """Independent estimators of the same integral (QMC + MIS + prefilter against plain MC).
+
+    Two references with other seeds differ by 1.5 % per pixel (each about 1 % noisy), and the
+    bake by 1.1 % from this one: bounded at 3 %, and the means at 1 %."""
     env = Environment.from_function(
         lambda d: np.repeat(0.3 + 0.2 * d[:, 2:3] + 30.0 * (d @ np.array([0.6, -0.6, 0.53]) > 0.995)[:, None], 3, 1),
         256, 128)
@@ -179,8 +182,8 @@ def test_bake_agrees_with_the_reference_on_a_glossy_table(sample_table):
     ref = render_reference(lay, [brdf], env, spp=1024, seed=11)
     bake = render_baked(lay, [brdf], env, lobe_samples=128, seed=12)
     mask = lay.interior_mask()
-    assert relative_rmse(bake, ref, mask) < 0.08
-    assert bake[mask][:, :3].mean() == pytest.approx(ref[mask][:, :3].mean(), rel=0.02)
+    assert relative_rmse(bake, ref, mask) < 0.03
+    assert bake[mask][:, :3].mean() == pytest.approx(ref[mask][:, :3].mean(), rel=0.01)
 
 
 def test_cache_recomputes_only_the_material_that_changed():

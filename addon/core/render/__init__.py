@@ -11,20 +11,22 @@ Public API
 ``bake_sphere(brdf, env, diameter, lobe_samples, seed) -> (radiance, coverage)``: the baked
     path's texture. ``render_baked(layout, brdfs, env, ...)``: the image it shows.
 ``render_reference(layout, brdfs, env, spp, seed)``: the converged Monte Carlo ground truth.
-``relative_rmse(image, reference, mask)``: the error measure of the benchmarks.
+``relative_rmse(image, reference, mask)`` (per pixel) and ``normalized_rmse`` (RMSE / RMS):
+    the error measures of the benchmarks.
 ``BakeCache``: bakes by content (material, map, resolution, settings).
 """
 
 from .cache import BakeCache, bake_key
 from .envmap import Environment, direction_to_uv, uv_to_direction
-from .estimators import bake_sphere, reference_sphere, relative_rmse, render_baked, render_reference
+from .estimators import (bake_sphere, normalized_rmse, reference_sphere, relative_rmse, render_baked,
+                         render_reference)
 from .lobe import (LobeTable, ModelBRDF, MomentParams, TableBRDF, make_brdf, truncated_params, truncnorm_mass,
                    truncnorm_moments, truncnorm_pdf, truncnorm_sample)
 from .scene import VIEW, Layout, interior_texels, local_frames, sphere_layout, sphere_points
 
 __all__ = [
     "BakeCache", "bake_key", "Environment", "direction_to_uv", "uv_to_direction", "bake_sphere", "reference_sphere",
-    "relative_rmse", "render_baked", "render_reference", "LobeTable", "ModelBRDF", "MomentParams", "TableBRDF",
+    "relative_rmse", "normalized_rmse", "render_baked", "render_reference", "LobeTable", "ModelBRDF", "MomentParams", "TableBRDF",
     "make_brdf", "truncated_params", "truncnorm_mass", "truncnorm_moments", "truncnorm_pdf", "truncnorm_sample", "VIEW", "Layout",
     "interior_texels", "local_frames", "sphere_layout", "sphere_points",
 ]

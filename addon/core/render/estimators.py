@@ -257,7 +257,18 @@ def render_baked(layout, brdfs, env, lobe_samples=64, seed=0, light_samples=None
 
 
 def relative_rmse(image, reference, mask):
-    """RMSE over the masked pixels (RGB), divided by the reference's RMS there."""
+    """Per-pixel relative RMSE over the masked pixels (RGB): sqrt(mean((x - r)^2 / (r^2 + e^2)))
+    with e = 1e-3 of the reference's mean (it only guards black pixels). Every pixel counts by
+    its relative error, as the eye sees it on a tone-mapped image."""
+    a = np.asarray(image, float)[mask][:, :3]
+    r = np.asarray(reference, float)[mask][:, :3]
+    e = 1e-3 * max(float(np.mean(np.abs(r))), 1e-300)
+    return float(np.sqrt(np.mean((a - r) ** 2 / (r * r + e * e))))
+
+
+def normalized_rmse(image, reference, mask):
+    """RMSE over the masked pixels (RGB) divided by the reference's RMS there: dominated by the
+    brightest pixels (highlights, grazing Fresnel)."""
     a = np.asarray(image, float)[mask][:, :3]
     r = np.asarray(reference, float)[mask][:, :3]
     return float(np.sqrt(np.mean((a - r) ** 2)) / max(np.sqrt(np.mean(r * r)), 1e-300))
