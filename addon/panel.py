@@ -75,7 +75,16 @@ def draw_material(layout, mat):
     for what, icon in (("TABLE", "EXPORT"), ("PROFILES", "TEXT"), ("PLOTS", "IMAGE_DATA")):
         op = row.operator("brdf_moments.export", text=what.title(), icon=icon)
         op.what, op.material = what, mat.name
-    layout.operator("brdf_moments.build_preview", icon="SHADING_RENDERED").material = mat.name
+    prev = layout.box()
+    prev.label(text="Preview: original | edited", icon="SHADING_RENDERED")
+    row = prev.row(align=True)
+    row.prop(state, "preview_path", expand=True)
+    if state.preview_path != "BAKED":
+        prev.row().prop(state, "preview_mode", expand=True)
+    prev.prop(state, "preview_env")
+    prev.prop(state, "preview_size")
+    op = prev.operator("brdf_moments.build_preview", icon="SHADING_RENDERED")
+    op.material, op.use_panel_settings = mat.name, True
 
 
 class MATERIAL_PT_brdf_moments(bpy.types.Panel):

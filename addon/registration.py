@@ -4,7 +4,7 @@ groups before the types that point to them, operators before the panels that dra
 import bpy
 
 from . import panel, state
-from ..operators import analyse, apply_edit, export, load_merl, reset_sliders
+from ..operators import analyse, apply_edit, build_preview, export, load_merl, reset_sliders
 
 OPERATORS = (
     load_merl.BRDFMOMENTS_OT_load_merl,
@@ -12,6 +12,7 @@ OPERATORS = (
     reset_sliders.BRDFMOMENTS_OT_reset_sliders,
     apply_edit.BRDFMOMENTS_OT_apply_edit,
     export.BRDFMOMENTS_OT_export,
+    build_preview.BRDFMOMENTS_OT_build_preview,
 )
 CLASSES = (*state.CLASSES, *OPERATORS, *panel.CLASSES)
 

@@ -40,6 +40,8 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     fit_theta1: bpy.props.FloatProperty(name="θ1", subtype="ANGLE")
     fit_alpha1: bpy.props.FloatProperty(name="α1")
     fit_m1: bpy.props.FloatProperty(name="m1")
+    # Per-channel energy fits: alpha_b (r, g, b), alpha1 (r, g, b), m1 (r, g, b).
+    fit_channels: bpy.props.FloatVectorProperty(size=9, options={"HIDDEN"})
     fit_mu_slope: bpy.props.FloatProperty(name="μ̃")
     fit_sigma2: bpy.props.FloatProperty(name="σ̃²")
     fit_energy_rmse: bpy.props.FloatProperty(name="energy RMSE")
@@ -47,12 +49,17 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     fit_variance_rmse: bpy.props.FloatProperty(name="variance RMSE")
     fit_notes: bpy.props.StringProperty(name="notes")
     # Sliders.
-    strength: bpy.props.FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=4.0)
-    colour: bpy.props.FloatVectorProperty(name="Colour", size=3, subtype="COLOR", default=(1.0, 1.0, 1.0), min=0.0)
-    grazing_boost: bpy.props.FloatProperty(name="Grazing boost", default=1.0, min=0.0, soft_max=4.0)
-    mu_slope: bpy.props.FloatProperty(name="Mean slope μ̃", default=-0.5, min=-1.0, max=0.0)
-    sigma2: bpy.props.FloatProperty(name="Variance σ̃²", default=0.1, min=1e-6, max=math.pi ** 2 / 12)
-    lock: bpy.props.BoolProperty(name="Follow correlation", default=False,
+    strength: bpy.props.FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=4.0,
+                                      update=lambda self, ctx: _slider_moved(self))
+    colour: bpy.props.FloatVectorProperty(name="Colour", size=3, subtype="COLOR", default=(1.0, 1.0, 1.0), min=0.0,
+                                          update=lambda self, ctx: _slider_moved(self))
+    grazing_boost: bpy.props.FloatProperty(name="Grazing boost", default=1.0, min=0.0, soft_max=4.0,
+                                           update=lambda self, ctx: _slider_moved(self))
+    mu_slope: bpy.props.FloatProperty(name="Mean slope μ̃", default=-0.5, min=-1.0, max=0.0,
+                                      update=lambda self, ctx: _slider_moved(self))
+    sigma2: bpy.props.FloatProperty(name="Variance σ̃²", default=0.1, min=1e-6, max=math.pi ** 2 / 12,
+                                    update=lambda self, ctx: _slider_moved(self))
+    lock: bpy.props.BoolProperty(name="Follow correlation", default=False, update=lambda self, ctx: _slider_moved(self),
                                  description="move the variance with the mean slope along the correlation quadratic")
     correlation_a: bpy.props.FloatProperty(
         name="Correlation a", default=0.0,
@@ -67,6 +74,18 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     max_albedo: bpy.props.FloatVectorProperty(name="Largest albedo", size=3, min=0.0)
     edit_warnings: bpy.props.StringProperty(name="Warnings")
     plot_caption: bpy.props.StringProperty(options={"HIDDEN"})  # the plot's y ranges, one chart a line
+    preview_material: bpy.props.StringProperty(options={"HIDDEN"})  # the edited sphere's material
+    preview_path: bpy.props.EnumProperty(name="Preview path", default="AUTO", items=[
+        ("AUTO", "Auto", "OSL where this Cycles has it, else baked"),
+        ("OSL", "OSL", "Cycles OSL shader: moment model or tabulated"),
+        ("BAKED", "Baked", "numpy radiance per texel through an Emission shader (any engine)")])
+    preview_mode: bpy.props.EnumProperty(name="OSL mode", default="MODEL", items=[
+        ("MODEL", "Moment model", "only the fitted parameters: slider drags update the shader live"),
+        ("TABULATED", "Tabulated", "the edited MERL table as a float texture, sampled with the moment lobe")])
+    preview_env: bpy.props.StringProperty(
+        name="Environment", default="",
+        description="a bundled HDRI name (empty: the default studio light) or an .exr/.hdr file of your own")
+    preview_size: bpy.props.IntProperty(name="Size", default=256, min=16, max=4096, subtype="PIXEL")
     scale_to_one: bpy.props.BoolProperty(
         name="Scale albedo to 1", default=False,
         description="scale the edited material down so that it reflects no more light than it receives")
@@ -81,6 +100,8 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         for key in ("energy", "mean", "variance"):
             value = fit[key]["rmse"]
             setattr(self, f"fit_{key}_rmse", float(value) if value is not None else 0.0)
+        chans = fit.get("channels") or {}
+        self.fit_channels = [float(chans.get(c, {}).get(k) or 0.0) for k in ("alpha_b", "alpha1", "m1") for c in "rgb"]
         self.fit_notes = "; ".join(fit.get("notes", []))
         # Sliders start at the fitted values (clamped to their ranges).
         if fit.get("mu_slope") is not None:
@@ -98,7 +119,21 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         """The stored fits as the engine's dict (enough for editing and plotting)."""
         return {"alpha_b": self.fit_alpha_b, "theta0": self.fit_theta0, "theta1": self.fit_theta1,
                 "alpha1": self.fit_alpha1, "m1": self.fit_m1, "mu_slope": self.fit_mu_slope,
-                "sigma2": self.fit_sigma2, "channels": {}}
+                "sigma2": self.fit_sigma2,
+                "channels": {c: {"alpha_b": self.fit_channels[i], "alpha1": self.fit_channels[3 + i],
+                                 "m1": self.fit_channels[6 + i]} for i, c in enumerate("rgb")}}
+
+    def model_params(self, edited=False):
+        """The moment model (paper Eq. 7) of the fits, or of the fits moved by the sliders."""
+        from .core.fits import correlation_curve
+        from .core.render import MomentParams
+
+        params = MomentParams.from_fit(self.fit(), tuple(self.kd))
+        if not edited:
+            return params
+        s2 = float(correlation_curve(self.mu_slope, self.correlation_a)) if self.lock else self.sigma2
+        return params.edited(self.strength, tuple(self.colour), self.grazing_boost, self.mu_slope,
+                             min(max(s2, 1e-7), math.pi ** 2 / 12))
 
     def reset_sliders(self):
         self.strength, self.colour, self.grazing_boost = 1.0, (1.0, 1.0, 1.0), 1.0
@@ -117,6 +152,22 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
                            sigma2=None if at_fit_s2 or self.lock else self.sigma2,
                            mode=self.mode, lock=self.lock,
                            correlation_a=self.correlation_a if self.lock else None)
+
+
+def _slider_moved(state):
+    """OSL moment-model preview: a slider drag only rewrites the edited sphere's node inputs
+    (no re-synthesis, no bake). Other previews wait for Apply / Build Preview."""
+    if not state.analysed or not state.preview_material:
+        return
+    mat = bpy.data.materials.get(state.preview_material)
+    if mat is None or mat.get("brdfm_path") != "osl" or mat.get("brdfm_mode") != "model":
+        return
+    from .preview import update_model
+
+    try:
+        update_model(mat, state.model_params(edited=True))
+    except ValueError:
+        pass  # the preview was rebuilt as another kind since: nothing to update
 
 
 def plot_image(mat, prof=None, fit=None, edited=None, width=480, height=420):

@@ -29,7 +29,8 @@ def _args():
     p = argparse.ArgumentParser(prog="samples/demo.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=os.path.join(ROOT, "out"))
     p.add_argument("--sample", default="ggx_glossy")
-    p.add_argument("--size", type=int, default=128, help="preview size in pixels (square)")
+    p.add_argument("--size", type=int, default=192, help="sphere size in pixels (the render is two spheres wide)")
+    p.add_argument("--samples", type=int, default=32, help="Cycles samples per pixel")
     p.add_argument("--path", choices=("auto", "osl", "baked"), default="auto",
                    help="preview path; auto = OSL where Cycles has it, else baked")
     p.add_argument("--installed", action="store_true", help="the add-on is already enabled")
@@ -77,8 +78,11 @@ def main():
     os.makedirs(args.out, exist_ok=True)
     os.environ.setdefault("BRDF_MOMENTS_CACHE", os.path.join(ROOT, ".cache", "engine"))
     os.environ.setdefault("BRDF_MOMENTS_SAMPLES", os.path.join(ROOT, ".cache", "samples"))
-    if "bpy" not in sys.modules:  # plain python: the bpy module
+    if "bpy" not in sys.modules:  # plain python: the bpy module, with its OSL reachable
         os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="brdf_moments_user_"))
+        from addon.wheel import import_bpy
+
+        import_bpy()
     import bpy
 
     import samples
@@ -119,6 +123,7 @@ def main():
     if has_operator(bpy, "build_preview"):
         t0 = time.perf_counter()
         bpy.ops.brdf_moments.build_preview(material=mat.name, path=args.path.upper(), size=args.size,
+                                           samples=args.samples,
                                            render_to=os.path.join(args.out, f"{args.sample}_preview.png"))
         renders.append(os.path.join(args.out, f"{args.sample}_preview.png"))
         _say("preview", f"original | edited rendered to {renders[-1]} ({time.perf_counter() - t0:.1f} s)")

@@ -45,7 +45,9 @@ def blender(tmp_path_factory):
 
     Session-wide: an extension repository can be added once per process."""
     os.environ.setdefault("BLENDER_USER_RESOURCES", str(tmp_path_factory.mktemp("blender-user")))
-    import bpy  # bpy first: it puts addon_utils on the path
+    from addon.wheel import import_bpy
+
+    bpy = import_bpy()  # bpy first (it puts addon_utils on the path), with OSL reachable
 
     repo = tmp_path_factory.mktemp("ext-repo")
     os.symlink(ROOT, repo / "brdf_moments")

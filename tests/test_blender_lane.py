@@ -67,4 +67,7 @@ def test_legacy_addon_runs_the_whole_flow_in_blender_34(lane_run, sample_table):
         np.testing.assert_allclose(data["measured"]["avg"][key], ours["avg"][key], rtol=1e-6, atol=1e-9)
     # The edit reached its variance target (model mode, a twofold blur of the glossy lobe).
     assert summary["reached"]["sigma2"] == pytest.approx(summary["target"]["sigma2"], rel=0.02)
+    # The preview took the baked path (this Blender has no OSL) and rendered both spheres.
+    assert summary["renders"] and os.path.isfile(summary["renders"][0])
+    assert "(baked)" in log or "(baked," in log
     assert "Traceback" not in log

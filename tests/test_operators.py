@@ -182,3 +182,43 @@ def test_every_operator_is_undo_aware(blender):
         if op.bl_idname == "brdf_moments.export":
             continue  # writes files only: nothing in the .blend to undo
         assert "UNDO" in op.bl_options, op.bl_idname
+
+
+def test_build_preview_baked_renders_original_and_edited(analysed, tmp_path):
+    bpy, mat, _ = analysed
+    state = mat.brdf_moments
+    state.sigma2 = min(state.fit_sigma2 * 1.5, 0.8)
+    out = tmp_path / "preview.png"
+    assert bpy.ops.brdf_moments.build_preview(material="Rough", path="BAKED", size=24, samples=4,
+                                              render_to=str(out)) == {"FINISHED"}
+    scene = bpy.data.scenes["BRDF Moments Preview"]
+    spheres = [o for o in scene.objects if o.type == "MESH"]
+    assert len(spheres) == 2
+    mats = {o.material_slots[0].material.name for o in spheres}
+    assert state.preview_material in mats and len(mats) == 2
+    img = bpy.data.images.load(str(out))
+    assert tuple(img.size) == (48, 24)
+    assert [s.name for s in bpy.data.scenes if s.name != "BRDF Moments Preview"]  # the user's scene is kept
+
+
+def test_slider_drag_updates_the_osl_preview_without_resynthesis(analysed, tmp_path):
+    from addon.preview import osl_available
+
+    bpy, mat, _ = analysed
+    if not osl_available()[0]:
+        pytest.fail("the bpy wheel's OSL should be reachable in the test harness: " + osl_available()[1])
+    state = mat.brdf_moments
+    assert bpy.ops.brdf_moments.build_preview(material="Rough", path="OSL", mode="MODEL", size=16) == {"FINISHED"}
+    edited = bpy.data.materials[state.preview_material]
+    node = edited.node_tree.nodes["BRDFM OSL"]
+    tables_before = set(os.listdir(os.path.join(os.environ["BRDF_MOMENTS_CACHE"], "edits"))) \
+        if os.path.isdir(os.path.join(os.environ["BRDF_MOMENTS_CACHE"], "edits")) else set()
+    state.sigma2 = 0.2
+    assert node.inputs["Sigma2"].default_value == pytest.approx(0.2)
+    state.mu_slope = -0.6
+    assert node.inputs["MuSlope"].default_value == pytest.approx(-0.6)
+    state.strength = 0.5
+    want = state.model_params(edited=True).alpha_b
+    assert tuple(node.inputs["AlphaB"].default_value)[:3] == pytest.approx(want, rel=1e-6)
+    edits = os.path.join(os.environ["BRDF_MOMENTS_CACHE"], "edits")
+    assert (set(os.listdir(edits)) if os.path.isdir(edits) else set()) == tables_before  # nothing re-synthesized
