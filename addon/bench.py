@@ -6,6 +6,7 @@ Sections:
   tables   tabulated samples against the converged adaptive reference, for the cached
            operator (all 90 views timed), Monte Carlo and the uniform grid;
   memory   peak resident memory of one material's analysis, in a fresh process.
+  preview  Cycles preview render time against error, both paths (addon/bench_preview.py).
 
 Times are medians over repeats in this one run; the machine is shared, so compare ratios.
 """
@@ -21,7 +22,7 @@ import time
 
 import numpy as np
 
-ALL_SECTIONS = ("closed", "tables", "memory", "fits", "edit")
+ALL_SECTIONS = ("closed", "tables", "memory", "fits", "edit", "preview")
 
 
 def _median_time(fn, repeat):
@@ -344,6 +345,12 @@ def bench_edit(quick):
              + (", ".join(outside) if outside else "none")])
 
 
+def _bench_preview(quick):
+    from .bench_preview import bench_preview
+
+    return bench_preview(quick)
+
+
 def main(args):
     sections = args.only or ALL_SECTIONS
     unknown = set(sections) - set(ALL_SECTIONS)
@@ -354,6 +361,6 @@ def main(args):
     for name in sections:
         lines = {"closed": lambda: bench_closed(args.quick), "tables": lambda: bench_tables(args.quick),
                  "memory": bench_memory, "fits": lambda: bench_fits(args.quick),
-                 "edit": lambda: bench_edit(args.quick)}[name]()
+                 "edit": lambda: bench_edit(args.quick), "preview": lambda: _bench_preview(args.quick)}[name]()
         print("\n".join(lines) + "\n", flush=True)
     return 0

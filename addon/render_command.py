@@ -6,25 +6,8 @@ ending in .exr it is linear scene radiance, 32-bit float, so renders compare num
 
 from __future__ import annotations
 
-import contextlib
 import os
-import sys
 import time
-
-
-@contextlib.contextmanager
-def _quiet_stdout():
-    """Blender prints render progress on the C-level stdout: send it to /dev/null."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 1)
-            yield
-    finally:
-        sys.stdout.flush()
-        os.dup2(saved, 1)
-        os.close(saved)
 
 
 def run(args, input_error):
@@ -54,11 +37,11 @@ def run(args, input_error):
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
     try:
-        with _quiet_stdout():
+        with preview.quiet_stdout():
             info = preview.build_preview(scene, original, edited, path=args.path, mode=args.mode, env=env,
                                          size=args.size, samples=args.samples, lobe_samples=args.lobe_samples,
                                          bake_samples=args.bake_samples)
-            preview.render_still(scene, out)
+        preview.render_still(scene, out, quiet=True)
     except preview.OSLUnavailable as exc:
         raise input_error(f"--path osl: {exc}") from None
     how = f"OSL, {info.mode} mode" if info.path == "osl" else "baked"

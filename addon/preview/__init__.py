@@ -24,15 +24,16 @@ Returns ``PreviewInfo(path, mode, layout, materials, environment, baked, notes)`
 
 Also: ``build_row(scene, sources, labels=...)`` for a row of spheres (e.g. a slider's range);
 ``set_source(material, source)`` + ``refresh_baked(scene)`` re-bake only what changed on visible
-spheres (content cache); ``render_still(scene, "out.png" | "out.exr")``.
+spheres (content cache); ``render_still(scene, "out.png" | "out.exr", quiet=False)``.
 Errors: ``ValueError`` (bad input, names the fault), ``MerlError``, ``OSLUnavailable``.
 """
 
-from .build import (PreviewInfo, bake_cache, build_preview, build_row, model_params, refresh_baked, render_still,
-                    set_source, source_of, update_model)
+from .build import (PreviewInfo, bake_cache, build_preview, build_row, model_params, quiet_stdout, refresh_baked,
+                    render_still, set_source, source_of, update_model)
 from .environment import bundled_environments, load_environment, resolve_environment, write_environment
 from .osl import OSLUnavailable, compile_shader, osl_available
 
-__all__ = ["PreviewInfo", "bake_cache", "build_preview", "build_row", "model_params", "refresh_baked", "render_still",
+__all__ = ["PreviewInfo", "bake_cache", "build_preview", "build_row", "model_params", "quiet_stdout", "refresh_baked",
+           "render_still",
            "set_source", "source_of", "update_model", "bundled_environments", "load_environment",
            "resolve_environment", "write_environment", "OSLUnavailable", "compile_shader", "osl_available"]

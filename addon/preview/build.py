@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import sys
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -264,8 +266,11 @@ def resolve_path(path):
 
 
 def build_row(scene, sources, *, labels=None, path="auto", mode="model", env=None, size=256, samples=16,
-              lobe_samples=16, bake_samples=64, engine="CYCLES", profiles=None) -> PreviewInfo:
-    """A row of spheres, one per source (MERL path, MerlTable or MomentParams), left to right."""
+              lobe_samples=16, bake_samples=64, engine="CYCLES", profiles=None, osl_filter=1.0) -> PreviewInfo:
+    """A row of spheres, one per source (MERL path, MerlTable or MomentParams), left to right.
+
+    ``osl_filter``: 1 looks the map up prefiltered to each OSL sample's footprint (less noise,
+    a little blur of small lights); 0 reads single texels (unbiased)."""
     if mode not in MODES:
         raise ValueError(f"OSL mode must be one of {MODES}, got {mode!r}")
     srcs = [as_source(s) for s in sources]
@@ -278,7 +283,7 @@ def build_row(scene, sources, *, labels=None, path="auto", mode="model", env=Non
     layout = sphere_layout(w, h, len(srcs))
     sc.configure_render(scene, layout, path, samples, engine)
     sc.ensure_camera(scene, layout)
-    sc.ensure_world(scene, env_path)
+    sc.ensure_world(scene, env_path, path=path)
     scene["brdfm_env"] = env_path
     scene["brdfm_bake_samples"] = int(bake_samples)
     objs = sc.ensure_spheres(scene, layout)
@@ -290,14 +295,16 @@ def build_row(scene, sources, *, labels=None, path="auto", mode="model", env=Non
         if path == "osl":
             node = osl_material(mat, mode)
             if mode == "model":
-                osl_path.set_model_inputs(node, model_params(src, prof), lobe_samples, env_path)
+                osl_path.set_model_inputs(node, model_params(src, prof), lobe_samples, env_path, pixel_samples=samples,
+                                          filter_scale=osl_filter)
             else:
                 if isinstance(src, MomentParams):
                     raise ValueError(f"{label}: tabulated mode needs a MERL table, not moment parameters")
                 brdf = brdf_of(src, prof)
                 fit = model_params(src, prof)
                 osl_path.set_table_inputs(node, osl_path.write_table_texture(brdf), fit.mu_slope, fit.sigma2,
-                                          brdf.kd, lobe_samples, env_path)
+                                          brdf.kd, lobe_samples, env_path, pixel_samples=samples,
+                                          filter_scale=osl_filter)
         else:
             if not isinstance(src, MomentParams):
                 brdf_of(src, prof)
@@ -317,9 +324,25 @@ def build_preview(scene, original, edited=None, **options) -> PreviewInfo:
     return build_row(scene, sources, labels=labels, **options)
 
 
-def render_still(scene, out_path):
+@contextlib.contextmanager
+def quiet_stdout():
+    """Blender prints render progress on the C-level stdout: send it to /dev/null."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def render_still(scene, out_path, quiet=False):
     """Render the scene to ``out_path``: .png display-referred (Standard view, sRGB, 8-bit RGBA),
-    .exr linear scene radiance (32-bit float RGBA). Written atomically."""
+    .exr linear scene radiance (32-bit float RGBA). Written atomically. ``quiet`` keeps
+    Blender's progress lines off stdout."""
     from ..core.atomic import atomic_path
 
     ext = os.path.splitext(os.fspath(out_path))[1].lower()
@@ -338,7 +361,8 @@ def render_still(scene, out_path):
         refresh_baked(scene)
     with atomic_path(out_path, ext) as tmp:
         scene.render.filepath = tmp
-        bpy.ops.render.render(write_still=True, scene=scene.name)
+        with quiet_stdout() if quiet else contextlib.nullcontext():
+            bpy.ops.render.render(write_still=True, scene=scene.name)
         if not os.path.exists(tmp) or os.path.getsize(tmp) == 0:
             raise RuntimeError(f"{out_path}: Blender wrote no image")
     return os.path.abspath(out_path)

@@ -87,9 +87,13 @@ def script_node(tree, mode: str):
     return node
 
 
-def set_model_inputs(node, params, samples=16, environment="", strength=1.0):
+def set_model_inputs(node, params, samples=16, environment="", strength=1.0, pixel_samples=None, filter_scale=None):
     """Write a MomentParams into a model-mode script node: the whole slider update."""
     ins = node.inputs
+    if pixel_samples is not None:
+        ins["PixelSamples"].default_value = int(pixel_samples)
+    if filter_scale is not None:
+        ins["Filter"].default_value = float(filter_scale)
     ins["AlphaB"].default_value = (*params.alpha_b, 1.0)
     ins["Alpha1"].default_value = (*params.alpha1, 1.0)
     ins["M1"].default_value = (*params.m1, 1.0)
@@ -104,8 +108,12 @@ def set_model_inputs(node, params, samples=16, environment="", strength=1.0):
 
 
 def set_table_inputs(node, texture_path, mu_slope, sigma2, kd, samples=16, environment="", strength=1.0,
-                     cosine_share=0.15):
+                     cosine_share=0.15, pixel_samples=None, filter_scale=None):
     ins = node.inputs
+    if pixel_samples is not None:
+        ins["PixelSamples"].default_value = int(pixel_samples)
+    if filter_scale is not None:
+        ins["Filter"].default_value = float(filter_scale)
     ins["Table"].default_value = texture_path
     ins["MuSlope"].default_value = float(mu_slope)
     ins["Sigma2"].default_value = float(min(max(sigma2, 1e-7), math.pi ** 2 / 12))

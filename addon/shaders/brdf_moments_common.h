@@ -152,12 +152,22 @@ color bm_energy(float t, color alpha_b, float theta0, float theta1, color alpha1
     return h00 * alpha_b + h01 * alpha1 + h11 * m1;
 }
 
-color bm_environment(string map, vector d)
+// Radiance around d averaged over about `footprint` steradians (0: the texel itself): the
+// texture's MIP levels through OIIO's filter, sized by derivatives in (s, t). Each of N
+// samples stands for 1 / (N q) sr of the lobe (filtered importance sampling), so a small
+// bright light seen by few samples is spread over their footprints instead of flickering.
+color bm_environment(string map, vector d, float footprint)
 {
     float u = 0.5 - atan2(d[1], d[0]) / (2.0 * BM_PI);
     u = u - floor(u);
-    float t = 0.5 - asin(clamp(d[2], -1.0, 1.0)) / BM_PI;
-    return (color) texture(map, u, t, 0, 0, 0, 0, "interp", "closest", "swrap", "periodic", "twrap", "clamp");
+    float z = clamp(d[2], -1.0, 1.0);
+    float t = 0.5 - asin(z) / BM_PI;
+    if (footprint <= 0.0)
+        return (color) texture(map, u, t, 0, 0, 0, 0, "interp", "closest", "swrap", "periodic", "twrap", "clamp");
+    float r = sqrt(footprint);
+    float ds = min(r / (2.0 * BM_PI * max(sqrt(max(1.0 - z * z, 0.0)), 0.02)), 0.5);
+    float dt = min(r / BM_PI, 0.5);
+    return (color) texture(map, u, t, ds, 0, 0, dt, "interp", "linear", "swrap", "periodic", "twrap", "clamp");
 }
 
 // The shading frame: the true sphere normal (from the object-space position, not the mesh's
