@@ -22,7 +22,4 @@ class BRDFMOMENTS_OT_analyse(BackgroundJob, bpy.types.Operator):
         return analysis_work(self._path)
 
     def finish(self, context, result):
-        mat = bpy.data.materials[self._mat_name]
-        name = store_analysis(mat, self._path, result)
-        state = mat.brdf_moments
-        self.report({"INFO"}, f"Analysed {name}: μ̃ {state.fit_mu_slope:+.3f}, σ̃² {state.fit_sigma2:.4f}")
+        self.report({"INFO"}, store_analysis(bpy.data.materials[self._mat_name], self._path, result))

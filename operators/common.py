@@ -53,7 +53,8 @@ def analysis_work(path):
     return work
 
 
-def store_analysis(mat, path, result):
+def store_analysis(mat, path, result) -> str:
+    """Write an analysis into the material (and its plot); returns the line to report."""
     from ..addon.state import plot_image
 
     name, prof, fit = result
@@ -64,4 +65,4 @@ def store_analysis(mat, path, result):
     state.edited_profiles_data = ""
     state.edit_warnings = ""
     plot_image(mat, prof, fit, edited=False)
-    return name
+    return f"Analysed {name}: μ̃ {state.fit_mu_slope:+.3f}, σ̃² {state.fit_sigma2:.4f}"

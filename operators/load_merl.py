@@ -42,7 +42,4 @@ class BRDFMOMENTS_OT_load_merl(BackgroundJob, bpy.types.Operator, ImportHelper):
         return analysis_work(self.filepath)
 
     def finish(self, context, result):
-        mat = bpy.data.materials[self._mat_name]
-        name = store_analysis(mat, self.filepath, result)
-        state = mat.brdf_moments
-        self.report({"INFO"}, f"Analysed {name}: μ̃ {state.fit_mu_slope:+.3f}, σ̃² {state.fit_sigma2:.4f}")
+        self.report({"INFO"}, store_analysis(bpy.data.materials[self._mat_name], self.filepath, result))
