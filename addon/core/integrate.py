@@ -25,7 +25,7 @@ from .merl import N_CELLS, cell_indices
 from .moments import exponents, monomials, n_monomials
 from .quadrature import RuleParams, graded_tensor_rule, slice_rule
 
-OPERATOR_VERSION = 6
+OPERATOR_VERSION = 7  # 7: the half-vector cos(theta_d) no longer goes through BLAS (bit-reproducible)
 MAX_ORDER = 4
 
 

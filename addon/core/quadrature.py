@@ -75,7 +75,9 @@ def half_vector_rule(theta_o: float, n_phi: int = 360, n_gauss: int = 3, u_edges
     cph, sph = np.cos(ph), np.sin(ph)
     h = np.stack((sh * cph, sh * sph, ch), axis=-1)
     wo = np.array([np.sin(theta_o), 0.0, np.cos(theta_o)])
-    cos_d = h @ wo
+    # Spelled out, not h @ wo: matmul may take a BLAS (FMA) path or not depending on memory
+    # alignment, and the cached operator must be bit-identical to a fresh build.
+    cos_d = h[..., 0] * wo[0] + h[..., 2] * wo[2]
     wi = 2.0 * cos_d[..., None] * h - wo
     cos_phi_i = np.sqrt(np.maximum(wi[..., 0] ** 2 + wi[..., 2] ** 2, 1e-300))
     weight = wu * (2.0 * np.pi / n_phi) * (np.pi * u) * sh * 4.0 * cos_d / cos_phi_i
