@@ -200,3 +200,17 @@ def test_cache_recomputes_only_the_material_that_changed():
     assert len(cache.computed) == 11
     cache.get(ModelBRDF(mats[0]), env, 14, 8)      # another resolution is another bake
     assert len(cache.computed) == 12
+
+
+def test_disk_cache_keeps_the_newest_bakes_and_reads_them_back(tmp_path):
+    env = Environment.constant((0.5, 0.5, 0.5))
+    base = MomentParams((0.3,) * 3, (0.5,) * 3, (0.1,) * 3, 0.7, 1.3, -0.9, 0.05)
+    cache = BakeCache(str(tmp_path), max_files=3)
+    for k in range(5):
+        cache.get(ModelBRDF(base.edited(strength=1 + k)), env, 8, 4)
+    assert len(list(tmp_path.glob("bake-*.npz"))) == 3
+    fresh = BakeCache(str(tmp_path), max_files=3)          # a new session finds the newest on disk
+    rgb, cov, _ = fresh.get(ModelBRDF(base.edited(strength=5)), env, 8, 4)
+    assert fresh.computed == [] and rgb.shape == (8, 8, 3)
+    fresh.get(ModelBRDF(base.edited(strength=1)), env, 8, 4)  # pruned: baked again
+    assert len(fresh.computed) == 1

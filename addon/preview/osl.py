@@ -139,9 +139,13 @@ def write_table_texture(brdf, folder=None) -> str:
     """The table texture of a TableBRDF, written once per content (OIIO caches textures by path,
     so a changed table must get a new file name)."""
     folder = folder or cache_dir()
-    path = os.path.join(folder, f"table-{brdf.content_key()[:24]}.exr")
+    path = os.path.join(folder, f"table-v1-{brdf.content_key()[:24]}.exr")
     if os.path.exists(path):
+        os.utime(path)                       # recently used: pruned last
         return path
+    from ..core.render.cache import prune
     from .environment import write_environment
 
-    return write_environment(table_texture_pixels(brdf.values, brdf.kd), path)
+    out = write_environment(table_texture_pixels(brdf.values, brdf.kd), path)
+    prune(folder, "table-", ".exr", 16)          # about 20 MB each; a row of 16 tables stays
+    return out

@@ -16,13 +16,12 @@ import numpy as np
 from .estimators import bake_sphere
 
 def _code_version():
-    """Hash of the engine's render sources: a bake made by other code is a miss."""
+    """Hash of the modules a bake's numbers come from: a bake made by other code is a miss."""
     h = hashlib.sha256(b"bake")
     here = os.path.dirname(os.path.abspath(__file__))
-    for name in sorted(os.listdir(here)):
-        if name.endswith(".py"):
-            with open(os.path.join(here, name), "rb") as fh:
-                h.update(name.encode() + fh.read())
+    for name in ("envmap.py", "estimators.py", "lobe.py", "scene.py"):
+        with open(os.path.join(here, name), "rb") as fh:
+            h.update(name.encode() + fh.read())
     return h.hexdigest()[:16]
 
 
@@ -38,11 +37,13 @@ def bake_key(brdf, env, diameter, lobe_samples, seed=0) -> str:
 
 
 class BakeCache:
-    """In memory (least recently used first out) and, with ``folder``, on disk as .npz."""
+    """In memory (least recently used first out) and, with ``folder``, on disk as .npz (the
+    ``max_files`` most recently written are kept: slider drags would otherwise fill the disk)."""
 
-    def __init__(self, folder=None, max_items=32):
+    def __init__(self, folder=None, max_items=32, max_files=256):
         self.folder = folder
         self.max_items = int(max_items)
+        self.max_files = int(max_files)
         self._mem = OrderedDict()
         self.computed = []          # keys baked by this cache, in order (tests and stats read it)
 
@@ -71,6 +72,7 @@ class BakeCache:
             with atomic_path(path, ".npz") as tmp:
                 with open(tmp, "wb") as fh:
                     np.savez(fh, radiance=rgb, coverage=cov)
+            prune(self.folder, "bake-", ".npz", self.max_files)
         return rgb, cov, key
 
     def _store(self, key, rgb, cov):
@@ -78,3 +80,19 @@ class BakeCache:
         self._mem.move_to_end(key)
         while len(self._mem) > self.max_items:
             self._mem.popitem(last=False)
+
+
+def prune(folder, prefix, suffix, keep):
+    """Delete all but the ``keep`` newest files ``prefix*suffix`` in ``folder``."""
+    try:
+        names = [n for n in os.listdir(folder) if n.startswith(prefix) and n.endswith(suffix)]
+    except OSError:
+        return
+    if len(names) <= keep:
+        return
+    paths = sorted((os.path.join(folder, n) for n in names), key=lambda p: os.path.getmtime(p), reverse=True)
+    for p in paths[keep:]:
+        try:
+            os.unlink(p)
+        except OSError:
+            pass
