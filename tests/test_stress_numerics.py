@@ -232,3 +232,28 @@ def test_operator_streamed_into_the_cache_equals_the_in_memory_build(tmp_path):
         np.testing.assert_array_equal(np.asarray(getattr(cached, k)), np.asarray(getattr(fresh, k)), err_msg=k)
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".tmp-")]
     _MEMO.clear()
+
+
+def test_building_an_operator_sweeps_older_versions_and_killed_builds(tmp_path):
+    # Each operator folder is a few hundred MB: a code update or a killed build must not leave
+    # one behind for ever. A live build's folder and the current version's operators stay.
+    import subprocess
+    import sys
+
+    from addon.core.integrate import _MEMO, OPERATOR_VERSION
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    kept = [f"operator-v{OPERATOR_VERSION}-0123456789abcdef0123", f".tmp-{os.getpid()}-op-live"]
+    gone = ["operator-0123456789abcdef0123", f"operator-v{OPERATOR_VERSION - 1}-0123456789abcdef0123",
+            f".tmp-{dead.pid}-op-killed"]
+    for name in kept + gone:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "weights.npy").write_bytes(b"x")
+    _MEMO.clear()
+    get_operator(np.radians([10.0]), cache_dir=str(tmp_path))
+    left = set(os.listdir(tmp_path))
+    assert set(kept) <= left
+    assert not set(gone) & left
+    assert len([n for n in left if n.startswith(f"operator-v{OPERATOR_VERSION}-")]) == 2  # + the new one
+    _MEMO.clear()

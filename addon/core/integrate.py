@@ -145,6 +145,8 @@ def _operator_key(theta_o, params):
     return h.hexdigest()[:20]
 
 
+_OPERATOR_PREFIX = f"operator-v{OPERATOR_VERSION}-"
+
 _MEMO: dict = {}
 _SMALL: dict = {}  # single-view operators (the 45 deg diffuse slice)
 
@@ -158,7 +160,7 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
         return _MEMO[key]
     if not memo and key in _SMALL:
         return _SMALL[key]
-    folder = os.path.join(cache_dir or default_cache_dir(), f"operator-{key}")
+    folder = os.path.join(cache_dir or default_cache_dir(), f"{_OPERATOR_PREFIX}{key}")
     op = None
     if os.path.isdir(folder):
         op = _load_operator(folder)
@@ -198,13 +200,34 @@ def _load_operator(folder):
     return SliceOperator(theta_o, offsets, **parts)
 
 
+def sweep_operator_cache(parent) -> list:
+    """Remove what no current build will read: operators of other code versions and the
+    half-built folders of builds that were killed. Each is a few hundred MB. Returns the names."""
+    from .atomic import _TEMP, _alive
+
+    removed = []
+    try:
+        names = os.listdir(parent)
+    except OSError:
+        return removed
+    for name in names:
+        m = _TEMP.match(name)
+        stale = (name.startswith("operator-") and not name.startswith(_OPERATOR_PREFIX)) or \
+                (m is not None and "-op-" in name and not _alive(int(m.group(1))))
+        if stale and os.path.isdir(os.path.join(parent, name)):
+            shutil.rmtree(os.path.join(parent, name), ignore_errors=True)
+            removed.append(name)
+    return removed
+
+
 def _build_into_cache(theta_o, params, folder, progress):
     """Build view by view into a temporary folder next to ``folder``, then rename it into
     place; returns the memory-mapped operator, or None if the cache cannot be written."""
     parent = os.path.dirname(folder)
     try:
         os.makedirs(parent, exist_ok=True)
-        tmp = tempfile.mkdtemp(prefix=".tmp-op-", dir=parent)
+        sweep_operator_cache(parent)
+        tmp = tempfile.mkdtemp(prefix=f".tmp-{os.getpid()}-op-", dir=parent)
     except OSError:
         return None  # an unwritable cache only costs time
     try:
