@@ -104,11 +104,13 @@ def ground_truth(layout, brdfs, env, tag, spp=GT_SPP):
     return image, noise, took
 
 
-def _median_time(fn, repeat):
+def _median_time(fn, repeat, setup=None):
+    """Median seconds of ``fn()`` over ``repeat`` calls; ``setup()`` runs untimed before each."""
     times, out = [], None
     for _ in range(repeat):
+        arg = setup() if setup else None
         t = time.perf_counter()
-        out = fn()
+        out = fn(arg) if setup else fn()
         times.append(time.perf_counter() - t)
     return float(np.median(times)), out
 
@@ -140,7 +142,7 @@ def bench_preview(quick=False):
     mask = layout.interior_mask()
     names = NAMES[:2] if quick else NAMES
     rep = 1 if quick else 3
-    bake_ks = (16, 32, 64) if quick else (16, 32, 64, 128)
+    bake_ks = (16, 32, 64) if quick else (8, 16, 32, 64, 128)
     ref_spps = (256,) if quick else (256, 1024)
     osl_settings = ((16, 16),) if quick else ((16, 16), (16, 64), (64, 16), (64, 64))
     gt_spp = 4096 if quick else GT_SPP
@@ -157,14 +159,14 @@ def bench_preview(quick=False):
         gt, gt_noise, gt_time = ground_truth(layout, brdfs, env, name, gt_spp)
         notes.append(f"{name}: ground truth {gt_spp} spp" + (f" ({gt_time:.0f} s)" if gt_time else " (cached)")
                      + f", its own noise {gt_noise:.2%} per pixel")
-        ref_best = None
+        refs = []
         for spp in ref_spps:
             t = time.perf_counter()
             img = render_reference(layout, brdfs, env, spp=spp, seed=1)
             took = time.perf_counter() - t
             e = err(img, gt)
             rows.append((name, "numpy reference", f"{spp} spp", took, e))
-            ref_best = (spp, took, e)
+            refs.append((spp, took, e))
         baked = []
         for k in bake_ks:
             if bpy is None:
@@ -178,31 +180,38 @@ def bench_preview(quick=False):
                 continue
             from .preview import build as build_mod
 
-            bpy.ops.wm.read_homefile(use_empty=True)
-            scene = bpy.context.scene
-
-            def bake():
+            def fresh_scene():
+                # A new empty scene each time: the preview skips images whose bake is current,
+                # so a second build in the same scene would time nothing.
+                bpy.ops.wm.read_homefile(use_empty=True)
                 env._irr_maps.clear()             # the irradiance map is part of a first bake
                 build_mod.CACHE = BakeCache()     # memory only: really bake, never read a cached one
-                return build_preview(scene, brdfs[0], brdfs[1], path="baked", env=env_path, size=SIZE,
+                return bpy.context.scene
+
+            def bake(scene):
+                info = build_preview(scene, brdfs[0], brdfs[1], path="baked", env=env_path, size=SIZE,
                                      samples=16, bake_samples=k)
-            t_bake, _ = _median_time(bake, rep)
+                if len(info.baked) != 2:
+                    raise RuntimeError(f"the timed build baked {info.baked}, not both spheres")
+                return scene
+            t_bake, scene = _median_time(bake, rep, setup=fresh_scene)
             t_render, _ = _median_time(lambda: render_still(scene, tmp, quiet=True), rep)
             build_mod.CACHE = None
             e = err(_read_exr(bpy, tmp), gt)
             rows.append((name, "baked: numpy bake + Cycles 16 spp", f"{k}+{k} samples/texel "
                          f"({t_bake:.2f} s + {t_render:.2f} s)", t_bake + t_render, e))
             baked.append((k, t_bake + t_render, e))
-        # the target: within 2x the reference's error in a tenth of its time
-        spp, t_ref, e_ref = ref_best
-        fit = [b for b in baked if b[1] <= t_ref / 10]
-        if fit:
-            k, t_b, e_b = min(fit, key=lambda b: b[2][0])
-            verdicts.append(f"| {name} | {spp} spp: {t_ref:.1f} s, {e_ref[0]:.2%} ({e_ref[1]:.2%}) | "
-                            f"{k}+{k}: {t_b:.2f} s, {e_b[0]:.2%} ({e_b[1]:.2%}) | {e_b[0] / e_ref[0]:.2f}x "
-                            f"({e_b[1] / e_ref[1]:.2f}x) | {'met' if e_b[0] <= 2 * e_ref[0] else 'missed'} |")
-        else:
-            verdicts.append(f"| {name} | {spp} spp: {t_ref:.1f} s | no bake within {t_ref / 10:.2f} s | — | missed |")
+        # the target: within 2x the reference's error in a tenth of its time (each reference run)
+        for spp, t_ref, e_ref in refs:
+            fit = [b for b in baked if b[1] <= t_ref / 10]
+            if fit:
+                k, t_b, e_b = min(fit, key=lambda b: b[2][0])
+                verdicts.append(f"| {name} | {spp} spp: {t_ref:.1f} s, {e_ref[0]:.2%} ({e_ref[1]:.2%}) | "
+                                f"{k}+{k}: {t_b:.2f} s, {e_b[0]:.2%} ({e_b[1]:.2%}) | {e_b[0] / e_ref[0]:.2f}x "
+                                f"({e_b[1] / e_ref[1]:.2f}x) | {'met' if e_b[0] <= 2 * e_ref[0] else 'missed'} |")
+            else:
+                verdicts.append(f"| {name} | {spp} spp: {t_ref:.1f} s | no bake within {t_ref / 10:.2f} s | — | "
+                                "missed |")
         if bpy is None:
             continue
         from .preview import model_params
