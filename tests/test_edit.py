@@ -134,3 +134,60 @@ def test_warp_to_the_measured_moments_reproduces_the_table(sample_table):
     # The specular part is max(rho - kd, 0) (SPEC §3), so cells below kd come back as kd.
     expected = np.maximum(table.rho, np.asarray(prof.kd)[:, None])
     np.testing.assert_allclose(out.rho[:, on], expected[:, on], rtol=1e-9, atol=1e-12)
+
+
+# --- moment round trips: edit, write, read back, re-measure, compare with the targets ----------
+# The issue's tolerances: |d mu| < 0.01 and |d sigma2| / sigma2 < 2 %.
+
+def _remeasured(res, prof, tmp_path):
+    from addon.core.merl import read_merl, write_merl
+
+    path = tmp_path / "edited.binary"
+    write_merl(res.table, path)
+    again = compute_profiles(read_merl(path), prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split)
+    return fit_material(again)
+
+
+@pytest.mark.parametrize("name", ["ggx_mirror", "ggx_glossy"])
+@pytest.mark.parametrize("scale", [0.7, 1.3])
+def test_model_mode_variance_edit_round_trips(sample_table, tmp_path, name, scale):
+    table = sample_table(name)
+    prof = compute_profiles(table)
+    fit = fit_material(prof)
+    target = fit["sigma2"] * scale
+    res = edit(table, EditTargets(sigma2=target, mode="model"), prof, fit)
+    f = _remeasured(res, prof, tmp_path)
+    assert abs(f["mu_slope"] - fit["mu_slope"]) < 0.01
+    assert abs(f["sigma2"] / target - 1.0) < 0.02
+    assert not any("not reachable" in w for w in res.warnings)
+
+
+def test_model_mode_reaches_a_witnessed_target_on_a_broad_lobe(sample_table, tmp_path):
+    # The target is what one synthesis re-measured at, so some reciprocal table has it.
+    from addon.core.edit import synthesize, view_goals
+
+    table = sample_table("ggx_rough")
+    prof = compute_profiles(table)
+    fit = fit_material(prof)
+    goals = view_goals(prof, fit, "model", fit["mu_slope"] + 0.05, fit["sigma2"] * 1.3) + (1.0,)
+    made, _ = synthesize(table, EditTargets(mode="model"), prof, fit, goals)
+    witness = fit_material(compute_profiles(made, prof.theta_o, kd=prof.kd, split=prof.split))
+    assert -1.0 <= witness["mu_slope"] <= 0.0
+    # Start the edit from the slider values, not from the synthesis that made the witness.
+    res = edit(table, EditTargets(mu_slope=witness["mu_slope"], sigma2=witness["sigma2"], mode="model"), prof, fit)
+    f = _remeasured(res, prof, tmp_path)
+    assert abs(f["mu_slope"] - witness["mu_slope"]) < 0.01
+    assert abs(f["sigma2"] / witness["sigma2"] - 1.0) < 0.02
+
+
+@pytest.mark.xfail(strict=True, reason="open (issue 4): the warp keeps GGX's heavy tails, and the reciprocal "
+                   "average brings the twin's near-horizon values into the slice, so the measured variance "
+                   "follows the warp's only weakly (see BENCHMARKS.md, editing)")
+def test_warp_mode_variance_edit_round_trips(sample_table, tmp_path):
+    table = sample_table("ggx_mirror")
+    prof = compute_profiles(table)
+    fit = fit_material(prof)
+    target = fit["sigma2"] * 0.7
+    res = edit(table, EditTargets(sigma2=target, mode="warp"), prof, fit)
+    f = _remeasured(res, prof, tmp_path)
+    assert abs(f["mu_slope"] - fit["mu_slope"]) < 0.01 and abs(f["sigma2"] / target - 1.0) < 0.02
