@@ -90,7 +90,13 @@ def prune(folder, prefix, suffix, keep):
         return
     if len(names) <= keep:
         return
-    paths = sorted((os.path.join(folder, n) for n in names), key=lambda p: os.path.getmtime(p), reverse=True)
+    def age(path):
+        try:
+            return os.path.getmtime(path)
+        except OSError:  # removed meanwhile by another Blender sharing the cache
+            return -1.0
+
+    paths = sorted((os.path.join(folder, n) for n in names), key=age, reverse=True)
     for p in paths[keep:]:
         try:
             os.unlink(p)
