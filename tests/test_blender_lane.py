@@ -40,7 +40,8 @@ def lane_run(tmp_path_factory):
     env = dict(os.environ, BLENDER_USER_SCRIPTS=str(tmp / "scripts"), BLENDER_USER_CONFIG=str(tmp / "config"))
     res = subprocess.run([BLENDER, "-b", "--factory-startup", "--python-exit-code", "1",
                           "--python-expr", INSTALL.format(zip=legacy),
-                          "-P", os.path.join(ROOT, "samples", "demo.py"), "--",
+                          "-P", os.path.join(ROOT, "samples", "demo.py"),
+                          "-P", os.path.join(ROOT, "tests", "blender", "lane_operators.py"), "--",
                           "--installed", "--out", str(out), "--size", "64"],
                          capture_output=True, text=True, env=env, timeout=1200)
     return res, out, tmp
@@ -71,3 +72,20 @@ def test_legacy_addon_runs_the_whole_flow_in_blender_34(lane_run, sample_table):
     assert summary["renders"] and os.path.isfile(summary["renders"][0])
     assert "(baked)" in log or "(baked," in log
     assert "Traceback" not in log
+
+
+def test_analyse_and_reset_run_in_blender_34(lane_run):
+    # The two operators the demo does not call, in the same session, on the material it left.
+    res, out, _ = lane_run
+    assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
+    ops = json.loads((out / "operators.json").read_text())
+    assert ops["ran"] == {"analyse": ["FINISHED"], "reset_sliders": ["FINISHED"]}
+    # The script zeroed the fit first: re-analysing the file restores it.
+    for key in ("mu_slope", "sigma2"):
+        assert ops["fit_after"][key] == pytest.approx(ops["fit_before"][key], rel=1e-6)
+    # The demo had moved the sliders; Reset puts them back on the fit.
+    assert ops["edited_sliders"]["strength"] != 1.0
+    assert ops["reset_sliders"]["strength"] == 1.0
+    assert ops["reset_sliders"]["sigma2"] == pytest.approx(ops["fit_after"]["sigma2"], rel=1e-6)
+    assert ops["reset_sliders"]["mu_slope"] == pytest.approx(min(max(ops["fit_after"]["mu_slope"], -1.0), 0.0),
+                                                          abs=1e-6)
