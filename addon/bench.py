@@ -334,7 +334,7 @@ def bench_edit(quick):
                 witnessed.append(row(name, mode, (f["mu_slope"], f["sigma2"]), "", res, time.perf_counter() - t0))
     n_ok = lambda rows: sum(r.endswith("| OK |") for r in rows)  # noqa: E731
     return (["### Editing: re-synthesis time and the moments reached", "",
-             f"One synthesis = one full 90x90x180 table, both orientations averaged (the per-cell pair",
+             f"One synthesis = one full 90x90x180 table, both orientations combined (the per-cell pair",
              f"geometry is cached once per process: {t_geo:.1f} s). A full edit adds correction rounds",
              "(tabulate, re-measure, adjust; at most 6) for the reciprocal symmetrization. OK = within the",
              "issue's tolerance (|Δμ̃| < 0.01 and |Δσ̃²|/σ̃² < 2 %).", "",

@@ -145,6 +145,7 @@ def _remeasured(res, prof, tmp_path):
     path = tmp_path / "edited.binary"
     write_merl(res.table, path)
     again = compute_profiles(read_merl(path), prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split)
+    res.remeasured = again
     return fit_material(again)
 
 
@@ -180,14 +181,31 @@ def test_model_mode_reaches_a_witnessed_target_on_a_broad_lobe(sample_table, tmp
     assert abs(f["sigma2"] / witness["sigma2"] - 1.0) < 0.02
 
 
-@pytest.mark.xfail(strict=True, reason="open (issue 4): the warp keeps GGX's heavy tails, and the reciprocal "
-                   "average brings the twin's near-horizon values into the slice, so the measured variance "
-                   "follows the warp's only weakly (see BENCHMARKS.md, editing)")
-def test_warp_mode_variance_edit_round_trips(sample_table, tmp_path):
-    table = sample_table("ggx_mirror")
+@pytest.mark.parametrize("name, scale", [("ggx_mirror", 0.7), ("ggx_mirror", 1.3), ("ggx_rough", 0.7)])
+def test_warp_mode_variance_edit_round_trips(sample_table, tmp_path, name, scale):
+    table = sample_table(name)
     prof = compute_profiles(table)
     fit = fit_material(prof)
-    target = fit["sigma2"] * 0.7
+    target = fit["sigma2"] * scale
+    res = edit(table, EditTargets(sigma2=target, mode="warp"), prof, fit)
+    f = _remeasured(res, prof, tmp_path)
+    assert abs(f["mu_slope"] - fit["mu_slope"]) < 0.01
+    assert abs(f["sigma2"] / target - 1.0) < 0.02
+    # The energy is held too, per view and channel, up to 80 deg (beyond, a broad lobe's
+    # energy is clipped at the horizon and the edit says so).
+    from addon.core.edit import target_energy
+
+    want = target_energy(prof, fit, EditTargets(sigma2=target, mode="warp"))
+    got = np.stack([res.remeasured[c]["alpha"] for c in "rgb"], axis=1)
+    below = np.asarray(prof.theta_o) <= np.radians(80.0)
+    np.testing.assert_allclose(got[below], want[below], rtol=0.1)
+
+
+@pytest.mark.xfail(strict=True, reason="open (issue 4): on ggx_glossy the correction rounds of warp mode do "
+                   "not settle within 6 rounds (the re-measured variance swings by 10-30 % between rounds)")
+def test_warp_mode_variance_edit_round_trips_on_a_glossy_lobe(glossy, tmp_path):
+    table, prof, fit = glossy
+    target = fit["sigma2"] * 1.3
     res = edit(table, EditTargets(sigma2=target, mode="warp"), prof, fit)
     f = _remeasured(res, prof, tmp_path)
     assert abs(f["mu_slope"] - fit["mu_slope"]) < 0.01 and abs(f["sigma2"] / target - 1.0) < 0.02
