@@ -81,12 +81,26 @@ def _environment(bpy):
     return Environment(OpenEXR.File(hits[0]).channels()["RGB"].pixels, ENV), hits[0]
 
 
+def reference_version():
+    """Hash of the code a reference render's numbers come from (and of nothing else: a change
+    to the bake must not throw away four-minute ground truths)."""
+    import inspect
+
+    from .core.render import envmap, estimators, lobe, scene
+
+    h = hashlib.sha256(b"reference")
+    for fn in (estimators.render_reference, estimators.reference_sphere, estimators._to_world,
+               estimators._cosine_sample):
+        h.update(inspect.getsource(fn).encode())
+    h.update(_source_hash(envmap, lobe, scene).encode())
+    return h.hexdigest()[:16]
+
+
 def ground_truth(layout, brdfs, env, tag, spp=GT_SPP):
     """(image, estimated relative RMSE of its own noise, seconds spent or 0 if cached)."""
     from .core.render import render_reference, relative_rmse
-    from .core.render.cache import BAKE_VERSION
 
-    h = hashlib.sha256(f"gt:{spp}:{layout}:{BAKE_VERSION}".encode())
+    h = hashlib.sha256(f"gt:{spp}:{layout}:{reference_version()}".encode())
     for b in brdfs:
         h.update(b.content_key().encode())
     h.update(env.content_key().encode())

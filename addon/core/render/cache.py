@@ -19,7 +19,7 @@ def _code_version():
     """Hash of the modules a bake's numbers come from: a bake made by other code is a miss."""
     h = hashlib.sha256(b"bake")
     here = os.path.dirname(os.path.abspath(__file__))
-    for name in ("envmap.py", "estimators.py", "lobe.py", "scene.py"):
+    for name in ("envmap.py", "estimators.py", "lights.py", "lobe.py", "scene.py"):
         with open(os.path.join(here, name), "rb") as fh:
             h.update(name.encode() + fh.read())
     return h.hexdigest()[:16]

@@ -23,9 +23,11 @@ import math
 import numpy as np
 from scipy.stats import qmc
 
+from .lights import light_clusters
 from .scene import local_frames, sphere_points, texel_positions, touched_texels
 
 CHUNK = 1 << 18  # samples per vectorized block: bounds memory at a few hundred MB
+LIGHT_CLUSTERS = 32  # groups of the map's bright texels a texel chooses among (lights.py)
 
 
 def _to_world(theta, phi, t, b, n):
@@ -57,7 +59,9 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
     ``light_samples`` (default as many) from the map's bright texels, each at its own
     QMC position in the texel. The map is split (``Environment.split``): the bright texels
     are integrated by multi-sample MIS of both strategies, unfiltered (unbiased); the dim
-    rest by the BRDF samples alone with prefiltered lookups (smooth, so nearly unbiased)."""
+    rest by the BRDF samples alone with prefiltered lookups (smooth, so nearly unbiased).
+    Light samples pick among clusters of bright texels by what each cluster gives the texel
+    (``lights.LightClusters``), not by power alone."""
     d = int(diameter)
     k = int(lobe_samples)
     kb = k if light_samples is None else int(light_samples)
@@ -68,6 +72,20 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
     if bright.size == 0:
         kb = 0
     bb, aa = np.nonzero(touched_texels(d))
+    if kb:
+        # each 2 x 2 block of texels chooses among the light clusters at its centre (the far
+        # corner of its first texel): a quarter of the cost of a choice per texel, and a
+        # choice only steers the samples, the estimate stays unbiased
+        clusters = light_clusters(bright, LIGHT_CLUSTERS)
+        h = (d + 1) // 2
+        blocks = np.unique(bb // 2 * h + aa // 2)
+        jb, ja = np.divmod(blocks, h)
+        _, _, t0, b0, n0, to0, _ = _texel_samples(d, 2 * ja, 2 * jb, np.ones((len(blocks), 1, 2)))
+        corners = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 2.0], [2.0, 2.0]])
+        n_c = _texel_samples(d, 2 * ja, 2 * jb, np.broadcast_to(corners, (len(blocks), 4, 2)))[4]
+        spread = np.arccos(np.clip(np.sum(n_c.reshape(-1, 4, 3) * n0[:, None], axis=2), -1.0, 1.0)).max(axis=1)
+        block_choice = np.zeros((h, h, clusters.count))
+        block_choice[jb, ja] = clusters.weights(brdf, n0, t0, b0, to0, spread)
     rng = np.random.default_rng(seed)
     pts_a = _sobol(4, k, rng)
     pts_b = _sobol(5, kb, rng) if kb else None
@@ -78,6 +96,8 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
     per = max(1, CHUNK // (k + kb))
     for s in range(0, len(aa), per):
         a, b = aa[s:s + per], bb[s:s + per]
+        if kb:
+            choice = block_choice[b // 2, a // 2]
         # BRDF-sampled directions: the residual (prefiltered) and their share of the lights
         ua = (pts_a[None] + shift_a[s:s + per, None]) % 1.0
         inside, u, t, bt, n, theta_o, cov = _texel_samples(d, a, b, ua)
@@ -91,7 +111,10 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
         g = f * np.where(ok, meas, 0.0)[:, None]
         contrib = g * residual.lookup_filtered(dirs, footprint) / (k * q)[:, None]
         if bright.size:
-            lb, pb = bright.lookup_pdf(dirs)
+            if kb:
+                lb, pb = clusters.lookup_pdf(choice, np.repeat(np.arange(len(a)), k), dirs)
+            else:
+                lb, pb = bright.lookup_pdf(dirs)
             w = k * q + kb * pb * np.cos(phi)      # both densities per d theta d phi
             contrib += g * lb / w[:, None]
         acc = contrib.reshape(len(a), k, 3).sum(axis=1)
@@ -99,7 +122,7 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
             # light-sampled directions
             ub = (pts_b[None] + shift_b[s:s + per, None]) % 1.0
             inside, u, t, bt, n, theta_o, _ = _texel_samples(d, a, b, ub)
-            dirs, pb = bright.sample(u[:, 2], u[:, 3], u[:, 4])
+            dirs, pb = clusters.sample(choice, np.repeat(np.arange(len(a)), kb), u[:, 2], u[:, 3], u[:, 4])
             lx, ly, lz = np.sum(dirs * t, 1), np.sum(dirs * bt, 1), np.sum(dirs * n, 1)
             up = (lz > 0.0) & inside
             theta = np.arctan2(lx, np.maximum(lz, 1e-300))
