@@ -245,9 +245,10 @@ class Environment:
             out[s:s + chunk] = c @ power
         return out
 
+
 class BrightTexels:
-    """Radiance on a set of texels of a map, sampled by energy, uniformly in solid angle inside
-    each texel."""
+    """Radiance on a set of texels of a map, with each texel's share of the set's energy (the
+    bake samples them through ``lights.LightClusters``)."""
 
     def __init__(self, env, texels, radiance, energy):
         self.env = env
@@ -257,19 +258,8 @@ class BrightTexels:
         self.slot[self.texels] = np.arange(self.size)
         e = np.asarray(energy, float)
         self.p = e / e.sum() if self.size and e.sum() > 0 else np.full(self.size, 1.0 / max(self.size, 1))
-        self.cdf = np.cumsum(self.p)
-        if self.size:
-            self.cdf[-1] = 1.0
         self.omega = np.repeat(env.row_omega, env.width)[self.texels]
         self.radiance = np.asarray(radiance, float).reshape(-1, 3)
-
-    def sample(self, u1, u2, u3):
-        """(directions, pdf per sr)."""
-        i = np.minimum(np.searchsorted(self.cdf, np.asarray(u1, float), side="right"), self.size - 1)
-        row, col = np.divmod(self.texels[i], self.env.width)
-        zt = self.env.z_edges
-        d = _direction((col + np.asarray(u2, float)) / self.env.width, zt[row] + np.asarray(u3, float) * (zt[row + 1] - zt[row]))
-        return d, self.p[i] / self.omega[i]
 
     def lookup_pdf(self, d):
         """(radiance (n, 3) of the set, zero outside it; pdf per sr)."""

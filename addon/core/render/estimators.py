@@ -10,10 +10,12 @@ same piecewise-constant environment. They differ in how:
   and any map. The full BRDF, kd included, goes through the samples; the map is looked up
   unfiltered.
 * ``bake_sphere``: the kd floor times the irradiance (a deterministic sum over the map), plus
-  the rest of the BRDF by quasi-Monte Carlo over the texel and the moment lobe (with a little
-  cosine sampling for energy outside it), looking the map up prefiltered to each sample's
-  footprint (filtered importance sampling). Deterministic for a seed, low noise, slightly
-  biased by the prefilter; the bias shrinks as the lobe sample count grows.
+  the rest of the BRDF by quasi-Monte Carlo over the texel. The map's bright texels are
+  integrated by MIS of the BRDF's sampler (with a little cosine sampling for energy outside
+  it) and of light samples, which each texel draws by what the lights give it
+  (``lights.py``); the dim rest by the BRDF samples alone, looking the map up prefiltered to
+  each sample's footprint (filtered importance sampling). Deterministic for a seed, low
+  noise, slightly biased by the prefilter; the bias shrinks as the sample count grows.
 """
 
 from __future__ import annotations

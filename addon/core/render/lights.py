@@ -3,16 +3,14 @@
 Drawn by power alone, most light samples of a texel land below its horizon or far outside its
 lobe: on Blender's studio map that made them the larger part of a near-mirror bake's noise. A
 texel instead weighs each cluster by a cheap guess at what the cluster gives *it*: the
-cluster's power, times the BRDF at the cluster's direction nearest to the mirror direction,
-times the best cosine inside the cluster. Inside a cluster, texels go by power. A share of
-every texel's samples still goes by power alone, so that no light is ever left out because the
-guess was low: the estimate stays unbiased whatever the guess.
+cluster's power times the BRDF near the cluster (see ``weights``). Inside a cluster, texels go
+by power. A share of every texel's samples still goes by power alone, so that no light is ever
+left out because the guess was low: the estimate stays unbiased whatever the guess.
 """
 
 from __future__ import annotations
 
 import math
-import weakref
 
 import numpy as np
 
@@ -20,19 +18,19 @@ from .envmap import _direction
 
 POWER_SHARE = 0.15          # the defensive share drawn by power alone
 HALF_PI = 0.5 * math.pi
-_CACHE = weakref.WeakKeyDictionary()
 
 
-def light_clusters(bright, count=64):
-    """The (cached) ``LightClusters`` of a ``BrightTexels`` set."""
-    per = _CACHE.setdefault(bright, {})
+def light_clusters(bright, count=32):
+    """The ``LightClusters`` of a ``BrightTexels`` set, kept on the set (so they go when its
+    map goes)."""
+    per = bright.__dict__.setdefault("_clusters", {})
     if count not in per:
         per[count] = LightClusters(bright, count)
     return per[count]
 
 
 class LightClusters:
-    def __init__(self, bright, count=64, iterations=12, seed=0):
+    def __init__(self, bright, count=32, iterations=12, seed=0):
         env = bright.env
         self.bright = bright
         row, col = np.divmod(bright.texels, env.width)
@@ -65,10 +63,10 @@ class LightClusters:
         the normals the choice serves stray from n (near a sphere's rim, a pixel's normals
         differ by degrees, and a lobe pressed against the horizon turns with them).
 
-        The guess at the BRDF over a cluster is its largest value at three points: the
-        cluster's axis and its points nearest to the mirror direction and to the lobe's peak
-        (a shifted lobe, as a model-mode edit makes, peaks away from the mirror). A guess
-        too low costs noise, so it errs high."""
+        A cluster's guess is the largest value at three points: its axis and its points
+        nearest to the mirror direction and to the lobe's peak (a shifted lobe, as a
+        model-mode edit makes, peaks away from the mirror). A guess too low costs noise, so
+        it errs high."""
         st, ct = np.sin(theta_o), np.cos(theta_o)
         peak = np.clip(brdf.lobes.at(theta_o)[0], -HALF_PI, HALF_PI)
         targets = (-st[:, None] * t + ct[:, None] * n,                      # the mirror direction
