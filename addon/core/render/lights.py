@@ -79,8 +79,9 @@ class LightClusters:
         gap = np.arccos(np.clip(n @ self.axes.T, -1.0, 1.0)) - self.half_angle[None, :] - spread[:, None]
         best_cos = np.maximum(np.cos(np.maximum(gap, 0.0)), 0.0)
         # two guesses, each normalized per texel and given half the rest: the table itself
-        # (sharp, right for narrow lobes, blind in missing cells) and the lobe sampler's
-        # density (smooth, blurs a narrow lobe)
+        # (sharp, right for narrow lobes, but a few points can all miss a lobe that is
+        # pressed against the horizon) and the lobe sampler's density (smooth, blurs a
+        # narrow lobe)
         guess = np.zeros((len(n), self.count))
         for fn, scale in ((self._brdf_at, best_cos), (self._lobe_at, 1.0)):
             g = self.power[None, :] * scale * np.max([fn(brdf, w, t, b, n, theta_o) for w in points], axis=0)
@@ -138,8 +139,8 @@ class LightClusters:
 
     def _lobe_at(self, brdf, w, t, b, n, theta_o):
         """The lobe sampler's density per steradian at world directions w (T, K, 3): the
-        BRDF times the cosine, smoothed over its half-vector rings (a measured table's missing
-        cells would otherwise hide a lobe from a guess made at a few points)."""
+        BRDF times the cosine, smoothed over its half-vector rings, so that a guess made at a
+        few points still sees a sharp lobe near them."""
         theta, phi = self._local(w, t, b, n)
         q = brdf.pdf(theta.ravel(), phi.ravel(), np.repeat(theta_o, w.shape[1]))
         return (q / np.maximum(np.cos(phi.ravel()), 1e-6)).reshape(theta.shape)
