@@ -151,8 +151,8 @@ def _remeasured(res, prof, tmp_path):
 
 @pytest.mark.parametrize("mode, name, scale", [
     ("model", "ggx_mirror", 0.7), ("model", "ggx_mirror", 1.3), ("model", "ggx_glossy", 0.7),
-    ("model", "ggx_glossy", 1.3), ("warp", "ggx_mirror", 0.7), ("warp", "ggx_mirror", 1.3),
-    ("warp", "ggx_rough", 0.7)])
+    ("model", "ggx_glossy", 1.3), ("model", "ggx_rough", 0.7), ("warp", "ggx_mirror", 0.7),
+    ("warp", "ggx_mirror", 1.3), ("warp", "ggx_glossy", 1.3), ("warp", "ggx_rough", 0.7)])
 def test_variance_edit_round_trips(sample_table, tmp_path, mode, name, scale):
     from addon.core.edit import target_energy
 
@@ -192,11 +192,38 @@ def test_model_mode_reaches_a_witnessed_target_on_a_broad_lobe(sample_table, tmp
     assert abs(f["sigma2"] / witness["sigma2"] - 1.0) < 0.02
 
 
-@pytest.mark.xfail(strict=True, reason="open (issue 4): on ggx_glossy the correction rounds of warp mode do "
-                   "not settle within 6 rounds (the re-measured variance swings by 10-30 % between rounds)")
-def test_warp_mode_variance_edit_round_trips_on_a_glossy_lobe(glossy, tmp_path):
-    table, prof, fit = glossy
+def test_warp_mode_reaches_witnessed_targets(sample_table, tmp_path):
+    # Targets that one synthesis re-measured at, so some table of this family has them: a
+    # near-mirror and a broad lobe, each moved 0.05 away from the normal.
+    from addon.core.edit import synthesize, view_goals
+
+    for name, dmu, scale in (("ggx_mirror", -0.05, 1.0), ("ggx_rough", -0.05, 1.0)):
+        table = sample_table(name)
+        prof = compute_profiles(table)
+        fit = fit_material(prof)
+        goals = view_goals(prof, fit, "warp", fit["mu_slope"] + dmu, fit["sigma2"] * scale) + (1.0,)
+        made, _ = synthesize(table, EditTargets(mode="warp"), prof, fit, goals)
+        witness = fit_material(compute_profiles(made, prof.theta_o, kd=prof.kd, split=prof.split))
+        assert -1.0 <= witness["mu_slope"] <= 0.0
+        res = edit(table, EditTargets(mu_slope=witness["mu_slope"], sigma2=witness["sigma2"], mode="warp"), prof, fit)
+        f = _remeasured(res, prof, tmp_path)
+        assert abs(f["mu_slope"] - witness["mu_slope"]) < 0.01, name
+        assert abs(f["sigma2"] / witness["sigma2"] - 1.0) < 0.02, name
+
+
+@pytest.mark.parametrize("mode", ["warp", "model"])
+def test_an_unreachable_target_is_reported_with_what_was_reached(sample_table, tmp_path, mode):
+    # A lobe centred near the horizon cannot hold 1.3x its variance (clipping takes the tails
+    # away again): the edit must say so, and the moments it reports must be the written table's.
+    table = sample_table("ggx_rough")
+    prof = compute_profiles(table)
+    fit = fit_material(prof)
     target = fit["sigma2"] * 1.3
-    res = edit(table, EditTargets(sigma2=target, mode="warp"), prof, fit)
+    res = edit(table, EditTargets(sigma2=target, mode=mode), prof, fit)
     f = _remeasured(res, prof, tmp_path)
-    assert abs(f["mu_slope"] - fit["mu_slope"]) < 0.01 and abs(f["sigma2"] / target - 1.0) < 0.02
+    assert abs(f["sigma2"] / target - 1.0) >= 0.02
+    notes = [w for w in res.warnings if "not reachable" in w]
+    assert len(notes) == 1
+    assert f"{f['mu_slope']:+.3f}" in notes[0] and f"{f['sigma2']:.4g}" in notes[0]
+    assert res.achieved_mu_slope == pytest.approx(f["mu_slope"], abs=1e-9)
+    assert res.achieved_sigma2 == pytest.approx(f["sigma2"], rel=1e-9)

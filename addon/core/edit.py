@@ -163,6 +163,13 @@ class SliceSamples:
         self.total = self.W.sum(axis=(1, 2))
         _, self.base_mean, self.base_var_t, self.base_var_p = self.moments(self.mu, 1.0, 1.0)
 
+    def subset(self, views):
+        """The same samples for some views only (the out-of-reach views' bisection)."""
+        sub = object.__new__(SliceSamples)
+        for name in ("theta_o", "mu", "t", "q", "W", "total", "base_mean", "base_var_t", "base_var_p"):
+            setattr(sub, name, getattr(self, name)[views])
+        return sub
+
     def moments(self, mu_new, k_t, k_p):
         """Per view: kept mass fraction, mean, var_theta, var_phi of the clipped warped slice."""
         shape = self.theta_o.shape
@@ -206,11 +213,16 @@ def _warp_fixed_point(samples, mu_target, var_t_target, var_p_target, iters):
             better = score < best[0]
             for slot, v in zip(best, (score, m, kt, kp, frac, r)):
                 slot[better] = v[better]
-        if np.all(best[0] < 1e-6):
+        # A settled view stays put: iterating on, it can wander to another map with the same
+        # clipped moments (twice as wide, its tails cut off), a different shape.
+        done = best[0] < 1e-2
+        if np.all(done):
             break
-        m = np.clip(m + (mu_target - mt), m0 - 0.5, m0 + 0.5)
-        kt = np.clip(kt * np.sqrt(np.clip(np.nan_to_num(np.exp(-lt), nan=1.0), 0.25, 4.0)), kt0 / 4, kt0 * 4)
-        kp = np.clip(kp * np.sqrt(np.clip(np.nan_to_num(np.exp(-lp), nan=1.0), 0.25, 4.0)), kp0 / 4, kp0 * 4)
+        m = np.where(done, m, np.clip(m + (mu_target - mt), m0 - 0.5, m0 + 0.5))
+        kt = np.where(done, kt, np.clip(kt * np.sqrt(np.clip(np.nan_to_num(np.exp(-lt), nan=1.0), 0.25, 4.0)),
+                                        kt0 / 4, kt0 * 4))
+        kp = np.where(done, kp, np.clip(kp * np.sqrt(np.clip(np.nan_to_num(np.exp(-lp), nan=1.0), 0.25, 4.0)),
+                                        kp0 / 4, kp0 * 4))
     _, m, kt, kp, frac, r = best
     reached = (np.abs(r[:, 0]) < 2.5) & np.all(np.abs(r[:, 1:]) < 0.5, axis=1)  # 0.005 rad, 1 % variances
     return np.stack([m, kt, kp, np.maximum(frac, 0.25)], axis=1), reached  # gain capped at 4x
@@ -229,24 +241,26 @@ def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target, ite
     params, reached = _warp_fixed_point(samples, mu_target, var_t_target, var_p_target, iters)
     if reached.all():
         return params, reached
-    todo = ~reached
+    todo = np.flatnonzero(~reached)
+    sub = samples.subset(todo)
+    mu_sub, vt_sub, vp_sub = mu_target[todo], var_t_target[todo], var_p_target[todo]
     lo = np.full(len(todo), -6.0)  # log variance scale; e^-6 narrows any lobe enough to fit
     hi = np.zeros(len(todo))       # scale 1: out of reach
     found = np.zeros(len(todo), bool)
     for _ in range(halvings):
         mid = 0.5 * (lo + hi)
-        scale = np.exp(np.where(todo, mid, 0.0))
-        p, ok = _warp_fixed_point(samples, mu_target, var_t_target * scale, var_p_target * scale, iters)
-        take = todo & ok
-        params[take] = p[take]
-        found |= take
-        lo = np.where(take, mid, lo)
-        hi = np.where(todo & ~ok, mid, hi)
-    rest = todo & ~found
-    if rest.any():
-        scale = np.exp(np.where(rest, lo, 0.0))
-        p, _ = _warp_fixed_point(samples, mu_target, var_t_target * scale, var_p_target * scale, iters)
-        params[rest] = p[rest]
+        scale = np.exp(mid)
+        p, ok = _warp_fixed_point(sub, mu_sub, vt_sub * scale, vp_sub * scale, iters)
+        params[todo[ok]] = p[ok]
+        found |= ok
+        lo = np.where(ok, mid, lo)
+        hi = np.where(ok, hi, mid)
+    if not found.all():
+        rest = ~found
+        scale = np.exp(lo[rest])
+        p, _ = _warp_fixed_point(sub.subset(np.flatnonzero(rest)), mu_sub[rest], vt_sub[rest] * scale,
+                                 vp_sub[rest] * scale, iters)
+        params[todo[rest]] = p
     return params, reached
 
 
@@ -355,15 +369,67 @@ def view_goals(prof: Profiles, fit: dict, mode: str, mu: float, s2: float):
     return mu * theta + deviation, np.maximum(var_t * ratio, 1e-14), np.maximum(var_p * ratio, 1e-14)
 
 
+# Residual units of the correction rounds: the issue's tolerances on the slope and on the
+# relative variance (in log, which is symmetric for narrowing and widening).
+ROUND_UNITS = np.array([0.01, 0.02])
+# Trust-region units: how far one round may move the synthesis slope and log variance.
+STEP_UNITS = np.array([0.05, 0.3])
+ENERGY_PASSES = 2
+ENERGY_TOLERANCE = 0.2   # as in _energy_check
+ENERGY_VIEWS = math.radians(80.0)  # beyond, a broad lobe's energy is clipped at the horizon
+
+
+@dataclass
+class _Round:
+    x: np.ndarray        # synthesis (slope, log variance)
+    y: np.ndarray        # re-measured (slope, log variance)
+    z: np.ndarray        # (y - goal) / ROUND_UNITS
+    energy_off: float    # largest |re-measured / wanted energy - 1| up to ENERGY_VIEWS
+    ratio: np.ndarray    # (views, 3) wanted / re-measured energy
+    out: MerlTable
+    notes: list
+    profiles: Profiles
+    fit: dict
+
+    @property
+    def size(self):
+        return float(np.hypot(*self.z))
+
+
+def _secant_jacobian(rounds, best, jac):
+    """The 2x2 Jacobian fitted by least squares to the (up to 3) rounds nearest the best one
+    in synthesis space, pulled lightly toward the previous estimate. Rank-one secant updates
+    could not learn how the slope feeds the variance on narrow lobes."""
+    near = sorted((r for r in rounds if r is not best and np.any(r.x != best.x)),
+                  key=lambda r: float(np.sum(((r.x - best.x) / STEP_UNITS) ** 2)))[:3]
+    if not near:
+        return jac
+    dx = np.array([r.x - best.x for r in near])
+    dy = np.array([r.y - best.y for r in near])
+    lam = 1e-3 * float(np.trace(dx.T @ dx)) + 1e-12
+    return np.linalg.solve(dx.T @ dx + lam * np.eye(2), dx.T @ dy + lam * jac.T).T
+
+
+def _pick_round(rounds):
+    """Moments first: among rounds within the issue's tolerances, one that holds the energy
+    (then the closest moments); else the closest moments."""
+    hit = [r for r in rounds if abs(r.z[0]) < 1.0 and abs(math.expm1(r.z[1] * ROUND_UNITS[1])) < ROUND_UNITS[1]]
+    if not hit:
+        return min(rounds, key=lambda r: r.size)
+    held = [r for r in hit if r.energy_off <= ENERGY_TOLERANCE]
+    return min(held, key=lambda r: r.size) if held else min(hit, key=lambda r: r.energy_off)
+
+
 def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, fit: dict | None = None,
-         remeasure: bool = True, progress=None, max_rounds: int = 6) -> EditResult:
+         remeasure: bool = True, progress=None, max_rounds: int = 10) -> EditResult:
     """Re-synthesize ``table`` for the slider ``targets``. Never modifies ``table``.
 
-    The reciprocal symmetrization moves the moments (a lobe seen with the roles swapped sits
+    The reciprocal combination moves the moments (a lobe seen with the roles swapped sits
     elsewhere), and so does clipping. So synthesis runs in rounds: tabulate, re-measure, and
-    move the synthesis slope and variance by the error left in the fitted ones, and each
-    view's energy by that view's energy error. The best round is kept, and what was reached
-    is reported either way.
+    step the synthesis slope and variance toward the targets (Newton steps in a trust region).
+    The energy is corrected in passes, each view by its own error, between which the per-view
+    gain stays fixed: a gain that changed every round made the map the steps follow a moving
+    target. The round that best meets the targets is kept, and what was reached is reported.
     """
     if prof is None:
         prof = compute_profiles(table)
@@ -389,16 +455,14 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     values = specular_values(table, kd, prof.split)
     samples = SliceSamples(values, prof) if targets.mode == "warp" else None
     goal = np.array([mu_t, math.log(s2_t)])
-    # Broyden steps on (synthesis slope, log synthesis variance) -> (measured slope, log
-    # measured variance). The map is far from the identity: for narrow lobes the measured
-    # slope moves *against* the synthesis slope (the role-swapped twin of a lobe at
-    # mu theta_o sits near theta_o / mu), so the Jacobian is learned from the rounds.
-    x = goal.copy()
-    jac = np.eye(2)
-    prev = None
-    best = None
+    lower = np.array([-1.6, math.log(MIN_SIGMA2)])
+    upper = np.array([0.6, math.log(LAMBERT_VARIANCE)])
     alpha_goal = target_energy(prof, fit, targets)
-    gain = np.ones_like(alpha_goal)  # per view and channel: corrects the energy the tabulation loses
+    energy_views = np.asarray(prof.theta_o, float) <= ENERGY_VIEWS + 1e-9
+    gain = np.ones_like(alpha_goal)  # per view and channel, fixed between energy passes
+    passes = 0
+    rounds, phase = [], []           # every round; the rounds since the last energy pass
+    x, jac, radius = goal.copy(), np.eye(2), 1.0
     for round_ in range(max_rounds):
         vt = view_goals(prof, fit, targets.mode, x[0], math.exp(x[1])) + (gain,)
         out, notes = synthesize(table, targets, prof, fit, vt, values, samples)
@@ -409,39 +473,45 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
         if f["mu_slope"] is None or f["sigma2"] is None or f["sigma2"] <= 0:
             break
         y = np.array([f["mu_slope"], math.log(f["sigma2"])])
-        err = y - goal
         ratio = _energy_ratio(new_prof, alpha_goal)
-        score = abs(err[0]) / 0.01 + abs(math.expm1(err[1])) / 0.02 + float(np.mean(np.abs(ratio - 1.0))) / 0.05
-        gain = np.clip(gain * np.sqrt(ratio), 1e-3, 1e3)  # damped: a cell serves two views
-        if best is None or score < best[0]:
-            best = (score, out, notes, new_prof, f, x.copy(), y)
-        if abs(err[0]) < 0.003 and abs(err[1]) < 0.006 and float(np.mean(np.abs(ratio - 1.0))) < 0.02:
+        off = float(np.abs(1.0 / ratio[energy_views] - 1.0).max(initial=0.0))
+        now = _Round(x.copy(), y, (y - goal) / ROUND_UNITS, off, ratio, out, notes, new_prof, f)
+        improved = not phase or now.size < min(r.size for r in phase)
+        rounds.append(now)
+        phase.append(now)
+        best = min(phase, key=lambda r: r.size)
+        settled = bool(np.all(np.abs(best.z) < 0.3))
+        if settled and (best.energy_off <= 0.1 or passes == ENERGY_PASSES):
             break
-        if prev is not None:
-            dx, dy = x - prev[0], y - prev[1]
-            if dx @ dx > 1e-12:
-                jac = jac + np.outer(dy - jac @ dx, dx) / (dx @ dx)
-        if abs(np.linalg.det(jac)) < 1e-3:
-            jac = np.eye(2)
-        # Step from the best point so far: a bad round never becomes the new base.
-        bx, by = best[5], best[6]
-        prev = (x.copy(), y)
-        step = np.linalg.solve(jac, goal - by)
-        step = np.clip(step, [-0.15, -0.7], [0.15, 0.7])
-        x = bx + step
-        x[0] = float(np.clip(x[0], -1.6, 0.6))
-        x[1] = float(np.clip(x[1], math.log(MIN_SIGMA2), math.log(LAMBERT_VARIANCE)))
-    if best is None:
+        if passes < ENERGY_PASSES and (np.all(np.abs(best.z) < 0.5) or (passes == 0 and round_ == max_rounds // 2 - 1)):
+            # An energy pass: every view's gain by its own error at the best round. This
+            # moves the moments a little, so the steps start again from there.
+            gain = np.clip(gain * best.ratio, 1e-3, 1e3)
+            passes += 1
+            x, phase = best.x.copy(), []
+            continue
+        jac = _secant_jacobian(phase, best, jac)
+        radius = min(radius * 1.5, 2.0) if improved else radius * 0.5
+        try:
+            step = np.linalg.solve(jac, goal - best.y)
+        except np.linalg.LinAlgError:
+            step = goal - best.y
+        length = float(np.hypot(*(step / STEP_UNITS)))
+        if length > radius:
+            step *= radius / length
+        x = np.clip(best.x + step, lower, upper)
+    if not rounds:
         raise ValueError(f"{table.name}: the edit left no specular energy to measure")
-    _, out, notes, new_prof, f = best[:5]
-    warnings += notes
+    pick = _pick_round(rounds)
+    f, new_prof = pick.fit, pick.profiles
+    warnings += pick.notes
     if abs(f["mu_slope"] - mu_t) >= 0.01 or abs(f["sigma2"] / s2_t - 1.0) >= 0.02:
         warnings.append(f"target not reachable for a reciprocal table: reached mean slope {f['mu_slope']:+.3f} "
                         f"(target {mu_t:+.3f}) and variance {f['sigma2']:.4g} (target {s2_t:.4g})")
-    energy_note = _energy_check(new_prof, target_energy(prof, fit, targets))
+    energy_note = _energy_check(new_prof, alpha_goal)
     if energy_note:
         warnings.append(energy_note)
-    res = _finish(out, targets, mu_t, s2_t, warnings, prof, remeasure=False)
+    res = _finish(pick.out, targets, mu_t, s2_t, warnings, prof, remeasure=False)
     res.achieved_mu_slope, res.achieved_sigma2, res.profiles = f["mu_slope"], f["sigma2"], new_prof
     return res
 
