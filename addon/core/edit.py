@@ -612,7 +612,11 @@ def synthesize(table, targets, prof, fit, view_targets=None, values=None, sample
             scale = scale / (kt * kp)
             np.clip(src_t, -HALF_PI, HALF_PI, out=src_t)
             np.clip(src_p, -HALF_PI, HALF_PI, out=src_p)
-            spec = values[cell_indices_view(src_t, src_p, cells_side.sin_e, cells_side.cos_e), :3].T
+            # float32 halves the trig of the lookup; it moves a lookup to a neighbour cell only
+            # within ~1e-7 rad of a cell edge (cells are 2e-4 rad and wider), and never a centre.
+            cells = cell_indices_view(src_t.astype(np.float32), src_p.astype(np.float32), cells_side.sin_e32,
+                                      cells_side.cos_e32)
+            spec = values[cells, :3].T
             for row, g in zip(spec, (g_r, g_g, g_b)):
                 g *= scale
                 row *= g
@@ -646,6 +650,7 @@ class _CellSide:
     def __init__(self, elev, theta, phi, grid):
         self.theta, self.phi = theta, phi
         self.sin_e, self.cos_e = np.sin(elev), np.cos(elev)
+        self.sin_e32, self.cos_e32 = self.sin_e.astype(np.float32), self.cos_e.astype(np.float32)
         self.n_views = len(grid)
         if len(grid) > 1:
             e = np.clip(elev, grid[0], grid[-1])
