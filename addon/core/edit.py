@@ -374,6 +374,9 @@ def view_goals(prof: Profiles, fit: dict, mode: str, mu: float, s2: float):
 ROUND_UNITS = np.array([0.01, 0.02])
 # Trust-region units: how far one round may move the synthesis slope and log variance.
 STEP_UNITS = np.array([0.05, 0.3])
+# Where the targets cannot both be met, the variance gives way before the slope (the slope
+# places the highlight; the per-view warp solve makes the same choice).
+SLOPE_FIRST = np.array([3.0, 1.0])
 ENERGY_PASSES = 2
 ENERGY_TOLERANCE = 0.2   # as in _energy_check
 ENERGY_VIEWS = math.radians(80.0)  # beyond, a broad lobe's energy is clipped at the horizon
@@ -393,31 +396,63 @@ class _Round:
 
     @property
     def size(self):
-        return float(np.hypot(*self.z))
+        return float(np.hypot(*(self.z * SLOPE_FIRST)))
 
 
-def _secant_jacobian(rounds, best, jac):
-    """The 2x2 Jacobian fitted by least squares to the (up to 3) rounds nearest the best one
-    in synthesis space, pulled lightly toward the previous estimate. Rank-one secant updates
-    could not learn how the slope feeds the variance on narrow lobes."""
-    near = sorted((r for r in rounds if r is not best and np.any(r.x != best.x)),
-                  key=lambda r: float(np.sum(((r.x - best.x) / STEP_UNITS) ** 2)))[:3]
+def _secant_jacobian(points, best, jac):
+    """The 2x2 Jacobian fitted by least squares to the (up to 3) points (x, y) nearest the best
+    round in synthesis space, pulled lightly toward the previous estimate. Rank-one secant
+    updates could not learn how the slope feeds the variance on narrow lobes."""
+    near = sorted((p for p in points if np.any(p[0] != best.x)),
+                  key=lambda p: float(np.sum(((p[0] - best.x) / STEP_UNITS) ** 2)))[:3]
     if not near:
         return jac
-    dx = np.array([r.x - best.x for r in near])
-    dy = np.array([r.y - best.y for r in near])
+    dx = np.array([p[0] - best.x for p in near])
+    dy = np.array([p[1] - best.y for p in near])
     lam = 1e-3 * float(np.trace(dx.T @ dx)) + 1e-12
     return np.linalg.solve(dx.T @ dx + lam * np.eye(2), dx.T @ dy + lam * jac.T).T
 
 
+def _trust_step(jac, residual, radius):
+    """The step that best cancels ``residual`` (in ROUND_UNITS) within ``radius`` (in
+    STEP_UNITS): Newton's when it fits, else the Levenberg-Marquardt step on the boundary.
+    Near a fold of the map (where the re-measured slope turns back) Newton's step is huge and
+    points anywhere; this one still lowers the residual, down to the closest reachable point."""
+    a = jac * STEP_UNITS[None, :] / ROUND_UNITS[:, None] * SLOPE_FIRST[:, None]
+    b = residual / ROUND_UNITS * SLOPE_FIRST
+    try:
+        u = np.linalg.solve(a, b)
+        if float(np.hypot(*u)) <= radius:
+            return u * STEP_UNITS
+    except np.linalg.LinAlgError:
+        pass
+    ata, atb = a.T @ a, a.T @ b
+    lo, hi = 0.0, float(np.trace(ata)) + float(np.hypot(*atb)) / max(radius, 1e-12)  # |u(hi)| <= radius
+    for _ in range(60):
+        lam = 0.5 * (lo + hi)
+        u = np.linalg.solve(ata + lam * np.eye(2), atb)
+        lo, hi = (lam, hi) if float(np.hypot(*u)) > radius else (lo, lam)
+    return np.linalg.solve(ata + hi * np.eye(2), atb) * STEP_UNITS
+
+
 def _pick_round(rounds):
     """Moments first: among rounds within the issue's tolerances, one that holds the energy
-    (then the closest moments); else the closest moments."""
-    hit = [r for r in rounds if abs(r.z[0]) < 1.0 and abs(math.expm1(r.z[1] * ROUND_UNITS[1])) < ROUND_UNITS[1]]
-    if not hit:
-        return min(rounds, key=lambda r: r.size)
-    held = [r for r in hit if r.energy_off <= ENERGY_TOLERANCE]
-    return min(held, key=lambda r: r.size) if held else min(hit, key=lambda r: r.energy_off)
+    (then the closest moments). Else, among rounds with the slope within tolerance, the
+    closest variance; else the closest moments."""
+    def slope_ok(r):
+        return abs(r.z[0]) < 1.0
+
+    def variance_off(r):
+        return abs(math.expm1(r.z[1] * ROUND_UNITS[1]))
+
+    hit = [r for r in rounds if slope_ok(r) and variance_off(r) < ROUND_UNITS[1]]
+    if hit:
+        held = [r for r in hit if r.energy_off <= ENERGY_TOLERANCE]
+        return min(held, key=lambda r: r.size) if held else min(hit, key=lambda r: r.energy_off)
+    placed = [r for r in rounds if slope_ok(r)]
+    if placed:
+        return min(placed, key=variance_off)
+    return min(rounds, key=lambda r: r.size)
 
 
 def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, fit: dict | None = None,
@@ -462,6 +497,8 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     gain = np.ones_like(alpha_goal)  # per view and channel, fixed between energy passes
     passes = 0
     rounds, phase = [], []           # every round; the rounds since the last energy pass
+    points = []                      # (x, y) for the Jacobian, carried over energy passes
+    before_pass = None               # the best round when the last energy pass began
     x, jac, radius = goal.copy(), np.eye(2), 1.0
     for round_ in range(max_rounds):
         vt = view_goals(prof, fit, targets.mode, x[0], math.exp(x[1])) + (gain,)
@@ -477,29 +514,30 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
         off = float(np.abs(1.0 / ratio[energy_views] - 1.0).max(initial=0.0))
         now = _Round(x.copy(), y, (y - goal) / ROUND_UNITS, off, ratio, out, notes, new_prof, f)
         improved = not phase or now.size < min(r.size for r in phase)
+        if before_pass is not None:
+            # Near the best point a new gain shifts the whole map by about the same amount:
+            # carry the earlier rounds over, shifted, rather than learn the Jacobian afresh.
+            shift = y - before_pass.y
+            points = [(px, py + shift) for px, py in points]
+            before_pass = None
         rounds.append(now)
         phase.append(now)
+        points.append((now.x, now.y))
         best = min(phase, key=lambda r: r.size)
         settled = bool(np.all(np.abs(best.z) < 0.3))
         if settled and (best.energy_off <= 0.1 or passes == ENERGY_PASSES):
             break
         if passes < ENERGY_PASSES and (np.all(np.abs(best.z) < 0.5) or (passes == 0 and round_ == max_rounds // 2 - 1)):
             # An energy pass: every view's gain by its own error at the best round. This
-            # moves the moments a little, so the steps start again from there.
+            # moves the moments a little, so the steps go on from a new look at that point.
             gain = np.clip(gain * best.ratio, 1e-3, 1e3)
             passes += 1
-            x, phase = best.x.copy(), []
+            x, phase, before_pass = best.x.copy(), [], best
+            points = [p for p in points if np.any(p[0] != best.x)]
             continue
-        jac = _secant_jacobian(phase, best, jac)
+        jac = _secant_jacobian(points, best, jac)
         radius = min(radius * 1.5, 2.0) if improved else radius * 0.5
-        try:
-            step = np.linalg.solve(jac, goal - best.y)
-        except np.linalg.LinAlgError:
-            step = goal - best.y
-        length = float(np.hypot(*(step / STEP_UNITS)))
-        if length > radius:
-            step *= radius / length
-        x = np.clip(best.x + step, lower, upper)
+        x = np.clip(best.x + _trust_step(jac, goal - best.y, radius), lower, upper)
     if not rounds:
         raise ValueError(f"{table.name}: the edit left no specular energy to measure")
     pick = _pick_round(rounds)
