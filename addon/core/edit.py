@@ -20,6 +20,7 @@ back, and cells missing in the input stay missing.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -158,7 +159,10 @@ class SliceSamples:
         T = np.broadcast_to(self.t[:, :, None], (nv, nt, nq))
         Q = np.broadcast_to(self.q[:, None, :], (nv, nt, nq))
         e = np.broadcast_to(self.theta_o[:, None, None], (nv, nt, nq))
-        rho = values[cell_indices_view(T, Q, np.sin(e), np.cos(e)), 3]
+        # float32 as in the tabulation's lookup: half the trig, the same cells but at cell edges.
+        f32 = np.float32
+        cells = cell_indices_view(T.astype(f32), Q.astype(f32), np.sin(e).astype(f32), np.cos(e).astype(f32))
+        rho = values[cells, 3]
         self.W = wt[:, :, None] * wq[:, None, :] * rho
         self.total = self.W.sum(axis=(1, 2))
         _, self.base_mean, self.base_var_t, self.base_var_p = self.moments(self.mu, 1.0, 1.0)
@@ -749,12 +753,29 @@ def _tabulate(table, evaluate, kd, grid, geometric=False):
     halving ggx_mirror's variance *raised* the re-measured variance at 60 deg threefold). The
     geometric mean keeps a value only where both views agree there is one."""
     active, (side_a, side_b) = _active_sides(table.valid, grid)
-    v = evaluate(side_a)
+    # The two orientations are independent, and numpy lets go of the GIL inside its loops:
+    # one runs on a second thread (the machine has two cores). The result does not depend on it.
+    other = {}
+
+    def second():
+        try:
+            other["v"] = evaluate(side_b)
+        except BaseException as exc:  # handed to the caller's thread below
+            other["error"] = exc
+
+    worker = threading.Thread(target=second, daemon=True)
+    worker.start()
+    try:
+        v = evaluate(side_a)
+    finally:
+        worker.join()
+    if "error" in other:
+        raise other["error"]
     if geometric:
-        v *= evaluate(side_b)
+        v *= other["v"]
         np.sqrt(v, out=v)
     else:
-        v += evaluate(side_b)
+        v += other["v"]
         v *= 0.5
     rho = np.zeros_like(table.rho)
     rho[:, active] = v

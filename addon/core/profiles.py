@@ -76,15 +76,17 @@ def specular_values(table: MerlTable, kd, split=True, dtype=np.float64, with_ave
     missing cell in. ``with_average=False`` returns only the three channels.
     """
     kd = np.asarray(kd, dtype=float) if split else np.zeros(3)
-    out = np.empty((table.rho.shape[1], 4 if with_average else 3), dtype=dtype)
-    spec = out[:, :3]
-    spec[...] = table.rho.T
-    spec -= kd.astype(dtype)
+    # Worked in the table's own (3, cells) layout, which is contiguous, and transposed once.
+    spec = np.subtract(table.rho, kd[:, None].astype(dtype), dtype=dtype)
     np.maximum(spec, 0.0, out=spec)
-    spec *= table.valid.T
+    spec *= table.valid
+    out = np.empty((table.rho.shape[1], 4 if with_average else 3), dtype=dtype)
+    out[:, :3] = spec.T
     if with_average:
-        np.mean(spec, axis=1, out=out[:, 3])
-        out[:, 3] *= table.valid.all(axis=0)
+        avg = spec.sum(axis=0)
+        avg /= 3
+        avg *= table.valid.all(axis=0)
+        out[:, 3] = avg
     return out
 
 
