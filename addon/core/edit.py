@@ -531,7 +531,8 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
         settled = bool(np.all(np.abs(best.z) < 0.3))
         if settled and (best.energy_off <= 0.1 or passes == ENERGY_PASSES):
             break
-        if passes < ENERGY_PASSES and (np.all(np.abs(best.z) < 0.5) or (passes == 0 and round_ == max_rounds // 2 - 1)):
+        halfway = passes == 0 and round_ == max_rounds // 2 - 1
+        if passes < ENERGY_PASSES and (np.all(np.abs(best.z) < 0.5) or halfway):
             # An energy pass: every view's gain by its own error at the best round. This
             # moves the moments a little, so the steps go on from a new look at that point.
             gain = np.clip(gain * best.ratio, 1e-3, 1e3)
