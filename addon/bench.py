@@ -313,7 +313,7 @@ def bench_edit(quick):
         want = target_energy(prof, fit, tg)
         got = np.stack([np.nan_to_num(np.asarray(res.profiles[c]["alpha"], float)) for c in "rgb"], axis=1)
         below = np.asarray(prof.theta_o) <= np.radians(80.0) + 1e-9
-        off = float(np.max(np.abs(got[below] / np.where(want[below] > 0, want[below], np.nan) - 1)))
+        off = float(np.nanmax(np.abs(got[below] / np.where(want[below] > 0, want[below], np.nan) - 1)))
         return (f"| {name} | {mode} | {target[0]:+.3f}, {target[1]:.4f} | {reached} | {100 * off:.0f} % | {t_syn} | "
                 f"{t_edit:.1f} s | {n_rounds} | {'OK' if ok else 'miss'} |")
 
