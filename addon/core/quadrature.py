@@ -16,6 +16,7 @@ boundary is integrated exactly rather than by masking.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -56,7 +57,7 @@ def half_vector_rule(theta_o: float, n_phi: int = 360, n_gauss: int = 3, u_edges
     if u_edges is None:
         u_edges = np.linspace(0.0, 1.0, RES_TH + 1)
     u_edges = np.asarray(u_edges, dtype=float)
-    xg, wg = np.polynomial.legendre.leggauss(n_gauss)
+    xg, wg = gauss_legendre(n_gauss)
     phi_h = (np.arange(n_phi) + 0.5) * (2.0 * np.pi / n_phi)
     u_max = np.sqrt(horizon_theta_h(theta_o, phi_h) / HALF_PI)  # (n_phi,)
 
@@ -95,6 +96,16 @@ def half_vector_rule(theta_o: float, n_phi: int = 360, n_gauss: int = 3, u_edges
                      phi_d.ravel())
 
 
+@lru_cache(maxsize=None)
+def gauss_legendre(n: int):
+    """Gauss-Legendre nodes and weights on [-1, 1], computed once per order (numpy's
+    leggauss solves an eigenproblem each call; per-view node sets call it hundreds of times)."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    x.flags.writeable = False
+    w.flags.writeable = False
+    return x, w
+
+
 def graded_edges(centre: float, lo: float, hi: float, r0: float, ratio: float = 1.5):
     """Panel edges on [lo, hi], geometric in distance from ``centre`` (fine at the peak)."""
     centre = float(np.clip(centre, lo, hi))
@@ -115,7 +126,7 @@ def graded_tensor_rule(centre_theta, centre_phi, r0, n_gauss=8, ratio=1.5):
     Used for slices given as functions, whose peak may sit anywhere and be as narrow as
     1e-4 rad: panels grow geometrically from width r0 at the peak.
     """
-    xg, wg = np.polynomial.legendre.leggauss(n_gauss)
+    xg, wg = gauss_legendre(n_gauss)
 
     def axis(c):
         e = graded_edges(c, -HALF_PI, HALF_PI, r0, ratio)
@@ -152,7 +163,7 @@ class RuleParams:
 
 
 def _composite(lo, hi, panels, n_gauss):
-    xg, wg = np.polynomial.legendre.leggauss(n_gauss)
+    xg, wg = gauss_legendre(n_gauss)
     e = np.linspace(lo, hi, panels + 1)
     half = 0.5 * np.diff(e)
     mid = 0.5 * (e[1:] + e[:-1])
