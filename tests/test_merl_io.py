@@ -220,3 +220,21 @@ def test_direct_view_cell_formula_matches_the_general_conversion():
     got = cell_indices_view(t, p, np.sin(e), np.cos(e))
     # Rounding can put a point exactly on a cell edge on either side; allow a handful.
     assert np.mean(got != want) < 1e-3
+    # float32 (the synthesis's precision) moves a lookup only at cell edges too.
+    f32 = cell_indices_view(t.astype(np.float32), p.astype(np.float32), np.sin(e), np.cos(e))
+    assert f32.dtype.kind == "i" and np.mean(f32 != want) < 1e-3
+
+
+def test_direct_view_cell_formula_takes_scalars_and_broadcasts():
+    from addon.core.merl import cell_indices_view
+
+    t = np.linspace(-1.5, 1.5, 7)[:, None]
+    p = np.linspace(-1.5, 1.5, 5)[None, :]
+    e = np.array([0.0, 0.4, 1.2])[:, None, None]
+    grid = cell_indices_view(t, p, np.sin(e), np.cos(e))
+    assert grid.shape == (3, 7, 5)
+    for k in range(3):
+        for i in range(7):
+            for j in range(5):
+                one = cell_indices_view(float(t[i, 0]), float(p[0, j]), math.sin(e[k, 0, 0]), math.cos(e[k, 0, 0]))
+                assert np.shape(one) == () and int(one) == grid[k, i, j]

@@ -161,7 +161,9 @@ def cell_indices_view(theta, phi, sin_e, cos_e):
     Works in the inputs' precision (float32 halves the cost of a full-table synthesis) and in
     place: at a million cells per call, temporaries cost as much as the trig.
     """
-    theta, phi = np.asarray(theta), np.asarray(phi)
+    shape = np.broadcast(theta, phi, sin_e, cos_e).shape
+    # At least 1-d and of one shape, so that the in-place steps below work for any caller.
+    theta, phi = np.broadcast_arrays(np.atleast_1d(theta), np.atleast_1d(phi))
     dt = np.result_type(theta, phi, np.float32)
     theta, phi = theta.astype(dt, copy=False), phi.astype(dt, copy=False)
     cp = np.cos(phi)
@@ -209,7 +211,7 @@ def cell_indices_view(theta, phi, sin_e, cos_e):
     idx += itd
     idx *= RES_PD
     idx += ipd
-    return idx
+    return idx.reshape(shape)
 
 
 def cell_centres():
