@@ -388,7 +388,8 @@ def bench_edit(quick):
     return (["### Editing: re-synthesis time and the moments reached", "",
              f"One synthesis = one full 90x90x180 table, both orientations combined (the per-cell pair",
              f"geometry is cached once per process: {t_geo:.1f} s). A full edit adds correction rounds",
-             "(tabulate, re-measure, step; at most 10) for the reciprocal combination and the clipping.",
+             "(tabulate, re-measure, step; 10, and up to 6 more while they close in) for the reciprocal",
+             "combination and the clipping.",
              "OK = within the issue's tolerance (|Δμ̃| < 0.01 and |Δσ̃²|/σ̃² < 2 %). Energy off = the largest",
              "|re-measured / wanted α − 1| per view and channel up to 80°.", "",
              f"Variance-only edits, the most common (σ̃² × 0.7 and × 1.3, μ̃ left as measured; "

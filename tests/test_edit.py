@@ -166,7 +166,7 @@ def _shape_change(before, after, max_deg=60.0):
 @pytest.mark.parametrize("mode, name, scale", [
     ("model", "ggx_mirror", 0.7), ("model", "ggx_mirror", 1.3), ("model", "ggx_glossy", 0.7),
     ("model", "ggx_glossy", 1.3), ("model", "ggx_rough", 0.7), ("warp", "ggx_mirror", 0.7),
-    ("warp", "ggx_mirror", 1.3), ("warp", "ggx_glossy", 1.3), ("warp", "ggx_rough", 0.7)])
+    ("warp", "ggx_mirror", 1.3), ("warp", "ggx_glossy", 0.7), ("warp", "ggx_glossy", 1.3), ("warp", "ggx_rough", 0.7)])
 def test_variance_edit_round_trips(sample_table, tmp_path, mode, name, scale):
     from addon.core.edit import target_energy
 
@@ -181,7 +181,7 @@ def test_variance_edit_round_trips(sample_table, tmp_path, mode, name, scale):
     assert not any("target not reached" in w for w in res.warnings)
     # The energy is held too, per view and channel, up to 80 deg (beyond, a broad lobe's
     # energy is clipped at the horizon and the edit says so): within the 20 % past which the
-    # edit warns (measured: at most 8.8 % in warp mode, 13.6 % in model mode).
+    # edit warns (measured in the bench: at most 15 % in warp mode, 12 % in model mode).
     want = target_energy(prof, fit, targets)
     got = np.stack([res.remeasured[c]["alpha"] for c in "rgb"], axis=1)
     below = np.asarray(prof.theta_o) <= np.radians(80.0)
@@ -189,7 +189,7 @@ def test_variance_edit_round_trips(sample_table, tmp_path, mode, name, scale):
     # Shape. GGX slices are heavy-tailed (excess kurtosis in the hundreds on the near-mirror), and
     # the tails reach the horizon, so widening clips them and the shape moves with it. Narrowing
     # clips nothing: warp keeps the skewness and kurtosis profiles up to what the reciprocal
-    # combination mixes in (measured: at most 21 % of the profile's own size up to 60 deg),
+    # combination mixes in (measured: at most 22 % of the profile's own size up to 60 deg),
     # while model mode puts Gaussians (no excess kurtosis) in their place.
     change = _shape_change(prof, res.remeasured)
     if mode == "warp" and scale < 1.0:
@@ -226,6 +226,25 @@ def test_a_near_miss_keeps_the_round_that_holds_the_energy():
     # A round within the tolerances is kept over any near miss, even if its energy is worse.
     hit = _round((0.5, 0.5), 0.5)
     assert _pick_round([b, hit, tie]) is hit
+
+
+def test_rounds_go_past_the_budget_only_while_they_close_in():
+    from addon.core.edit import CLOSING_GAIN, _closing_in
+
+    def phase(*sizes):  # rounds with only the slope off, so that size = 3 |z_slope|
+        return [_round((z / 3.0, 0.0), 0.0) for z in sizes]
+
+    # The last three rounds bettered the earlier best (4.0) by more than CLOSING_GAIN: go on.
+    creeping = phase(4.0, 4.6, 3.9, 10.5, 3.4)
+    assert [r.size for r in creeping] == pytest.approx([4.0, 4.6, 3.9, 10.5, 3.4])
+    assert 3.4 < (1 - CLOSING_GAIN) * 4.0
+    assert _closing_in(creeping, creeping)
+    # A plateau (an out-of-reach target) stops, and so does a phase too short to judge.
+    plateau = phase(13.49, 13.53, 13.54, 13.54, 13.53)
+    assert not _closing_in(plateau, plateau)
+    assert not _closing_in(creeping, creeping[:3])
+    # Once any round meets the tolerances, more rounds would only polish it.
+    assert not _closing_in(creeping + [_round((0.5, 0.5), 0.0)], creeping)
 
 
 def test_model_mode_reaches_a_witnessed_target_on_a_broad_lobe(sample_table, tmp_path):
