@@ -159,7 +159,15 @@ def cmd_edit(args):
     colour = args.alpha or (1.0, 1.0, 1.0)
     targets = EditTargets(strength=args.alpha_scale if args.alpha_scale is not None else 1.0, colour=colour,
                           grazing_boost=args.grazing_boost, mu_slope=args.mu, sigma2=args.sigma2, mode=args.mode)
-    res = edit(table, targets)
+    bar, shown = _progress("edit: correction rounds"), [0, 0]
+
+    def rounds(done, total):
+        shown[:] = [done, total]
+        bar(done, total)
+
+    res = edit(table, targets, progress=rounds if bar else None)
+    if bar and shown[0] < shown[1]:
+        sys.stderr.write("\n")  # the rounds usually settle before their budget: end the bar's line
     write_merl(res.table, args.out, source=args.file)
     mu = "—" if res.achieved_mu_slope is None else f"{res.achieved_mu_slope:+.4f}"
     s2 = "—" if res.achieved_sigma2 is None else f"{res.achieved_sigma2:.5f}"
