@@ -298,7 +298,8 @@ def _witnesses(table, prof, fit, mode, dmu, k):
         ratio = _energy_ratio(new, want)
         if n in (0, ENERGY_PASSES):
             out.append((fit_material(new), float(np.abs(1.0 / ratio[views] - 1.0).max(initial=0.0))))
-        gain = np.clip(gain * ratio, *GAIN_RANGE)
+        if n < ENERGY_PASSES:
+            gain = np.clip(gain * ratio, *GAIN_RANGE)
     return out
 
 
@@ -340,7 +341,7 @@ def bench_edit(quick):
         rounds = []
         t0 = time.perf_counter()
         res = edit(table, tg, prof, fit, progress=lambda k, n: rounds.append(k))
-        return res, time.perf_counter() - t0, len(rounds)
+        return res, time.perf_counter() - t0, max(rounds)  # a bar stopped short gets a last call
 
     def row(name, mode, target, t_syn, res, t_edit, n_rounds, prof, fit, tg):
         ok = (res.achieved_mu_slope is not None and abs(res.achieved_mu_slope - target[0]) < 0.01

@@ -161,13 +161,15 @@ def cmd_edit(args):
                           grazing_boost=args.grazing_boost, mu_slope=args.mu, sigma2=args.sigma2, mode=args.mode)
     bar, shown = _progress("edit: correction rounds"), [0, 0]
 
-    def rounds(done, total):
+    def on_round(done, total):
         shown[:] = [done, total]
         bar(done, total)
 
-    res = edit(table, targets, progress=rounds if bar else None)
-    if bar and shown[0] < shown[1]:
-        sys.stderr.write("\n")  # the rounds usually settle before their budget: end the bar's line
+    try:
+        res = edit(table, targets, progress=on_round if bar else None)
+    finally:
+        if bar and shown[0] < shown[1]:
+            sys.stderr.write("\n")  # an error cut the rounds short: end the bar's line before it
     write_merl(res.table, args.out, source=args.file)
     mu = "—" if res.achieved_mu_slope is None else f"{res.achieved_mu_slope:+.4f}"
     s2 = "—" if res.achieved_sigma2 is None else f"{res.achieved_sigma2:.5f}"

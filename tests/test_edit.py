@@ -223,6 +223,12 @@ def test_a_near_miss_keeps_the_round_that_holds_the_energy():
     a, b, c = _round((0.2, z_var(0.100)), 0.30), _round((0.9, z_var(0.103)), 0.05), _round((0.0, z_var(0.12)), 0.0)
     assert _pick_round([a, b, c]) is b
     assert _pick_round([a, c]) is a
+    # Among near ties that all hold the energy (within 20 %), the closest is kept, as among hits.
+    held_closest, held_tie = _round((1.10, -0.08), 0.15), _round((1.12, 0.54), 0.01)
+    assert _pick_round([held_tie, held_closest]) is held_closest
+    # With none held, the better energy is kept.
+    dim_closest, dim_tie = _round((1.10, -0.08), 0.6), _round((1.12, 0.54), 0.3)
+    assert _pick_round([dim_closest, dim_tie]) is dim_tie
     # A round within the tolerances is kept over any near miss, even if its energy is worse.
     hit = _round((0.5, 0.5), 0.5)
     assert _pick_round([b, hit, tie]) is hit
@@ -245,6 +251,45 @@ def test_rounds_go_past_the_budget_only_while_they_close_in():
     assert not _closing_in(creeping, creeping[:3])
     # Once any round meets the tolerances, more rounds would only polish it.
     assert not _closing_in(creeping + [_round((0.5, 0.5), 0.0)], creeping)
+
+
+def _stub_rounds(monkeypatch, table, prof, fit, remeasured):
+    """edit() with the synthesis, re-measurement and fit stubbed: every round re-measures
+    ``remeasured``, so only the loop's own rules decide when the rounds stop."""
+    import addon.core.edit as E
+
+    made = table.copy()
+    monkeypatch.setattr(E, "synthesize", lambda *a, **k: (made, []))
+    monkeypatch.setattr(E, "compute_profiles", lambda *a, **k: prof)
+    monkeypatch.setattr(E, "fit_material", lambda p: dict(fit, **remeasured))
+    return E
+
+
+@pytest.mark.parametrize("closing", [False, True])
+def test_the_rounds_stop_at_the_budget_unless_they_close_in(glossy, monkeypatch, closing):
+    table, prof, fit = glossy
+    E = _stub_rounds(monkeypatch, table, prof, fit, {"mu_slope": fit["mu_slope"] + 0.2, "sigma2": fit["sigma2"] * 2})
+    monkeypatch.setattr(E, "_closing_in", lambda rounds, phase: closing)
+    calls = []
+    res = E.edit(table, EditTargets(sigma2=fit["sigma2"] * 0.7, mode="model"), prof, fit,
+                 progress=lambda done, total: calls.append((done, total)))
+    n = E.EXTRA_ROUNDS + 10 if closing else 10
+    assert calls == [(k, 10 if k <= 10 else 10 + E.EXTRA_ROUNDS) for k in range(1, n + 1)]
+    assert any("target not reached" in w for w in res.warnings)
+
+
+def test_rounds_that_settle_early_end_the_progress_full(glossy, monkeypatch):
+    table, prof, fit = glossy
+    target = fit["sigma2"] * 0.7
+    E = _stub_rounds(monkeypatch, table, prof, fit, {"sigma2": target})
+    calls = []
+    res = E.edit(table, EditTargets(sigma2=target, mode="model"), prof, fit,
+                 progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(1, 10), (1, 1)]
+    assert res.achieved_sigma2 == target
+    assert not any("target not reached" in w for w in res.warnings)
+    with pytest.raises(ValueError, match="max_rounds"):
+        E.edit(table, EditTargets(sigma2=target, mode="model"), prof, fit, max_rounds=0)
 
 
 def test_model_mode_reaches_a_witnessed_target_on_a_broad_lobe(sample_table, tmp_path):

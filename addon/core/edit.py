@@ -460,10 +460,11 @@ def _trust_step(jac, residual, radius):
     return np.linalg.solve(ata + hi * np.eye(2), atb) * STEP_UNITS
 
 
-# When no round meets the tolerances, rounds this close to the closest one (a quarter of the
-# variance tolerance; half a unit of the weighted residual) count as equally close, and the one
-# that best holds the energy is kept: near a fold the rounds differ by the map's noise in the
-# moments but by up to 20 % in the energy, which a user does see.
+# When no round meets the tolerances, rounds this close to the closest one count as equally
+# close: with the slope within tolerance, a quarter of the variance tolerance (0.5 % relative);
+# else half a unit of the weighted residual (a sixth of the slope tolerance, or half the
+# variance's). Among them, as among hits, one that holds the energy is kept: near a fold the
+# rounds differ by the map's noise in the moments but by up to 20 % in the energy.
 NEAR_MISS = (0.25 * ROUND_UNITS[1], 0.5)
 
 
@@ -500,7 +501,9 @@ def _pick_round(rounds):
     placed = [r for r in rounds if _slope_ok(r)]
     pool, off, margin = (placed, _variance_off, NEAR_MISS[0]) if placed else (rounds, lambda r: r.size, NEAR_MISS[1])
     closest = min(off(r) for r in pool)
-    return min((r for r in pool if off(r) <= closest + margin), key=lambda r: (r.energy_off, off(r)))
+    near = [r for r in pool if off(r) <= closest + margin]
+    held = [r for r in near if r.energy_off <= ENERGY_TOLERANCE]
+    return min(held, key=off) if held else min(near, key=lambda r: r.energy_off)
 
 
 def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, fit: dict | None = None,
@@ -513,7 +516,14 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     The energy is corrected in passes, each view by its own error, between which the per-view
     gain stays fixed: a gain that changed every round made the map the steps follow a moving
     target. The round that best meets the targets is kept, and what was reached is reported.
+
+    ``max_rounds`` is the budget of rounds (at least 1); up to EXTRA_ROUNDS more run while the
+    rounds still close in. ``progress(done, total)`` is called after each round, with ``total``
+    the budget (then the budget and the extra rounds), and once more with ``done == total``
+    when the rounds stop short of it, so that a progress bar ends full.
     """
+    if max_rounds < 1:
+        raise ValueError(f"max_rounds must be at least 1, not {max_rounds}")
     if prof is None:
         prof = compute_profiles(table)
     if fit is None:
@@ -553,8 +563,9 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
         out, notes = synthesize(table, targets, prof, fit, vt, values, samples)
         new_prof = compute_profiles(out, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split)
         f = fit_material(new_prof)
+        total = max_rounds if round_ < max_rounds else max_rounds + EXTRA_ROUNDS
         if progress:
-            progress(round_ + 1, max_rounds + EXTRA_ROUNDS)
+            progress(round_ + 1, total)
         if f["mu_slope"] is None or f["sigma2"] is None or f["sigma2"] <= 0:
             break
         y = np.array([f["mu_slope"], math.log(f["sigma2"])])
@@ -589,6 +600,8 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
         jac = _secant_jacobian(points, best, jac)
         radius = min(radius * 1.5, 2.0) if improved else radius * 0.5
         x = np.clip(best.x + _trust_step(jac, goal - best.y, radius), lower, upper)
+    if progress and round_ + 1 < total:
+        progress(round_ + 1, round_ + 1)  # stopped short: end the bar full
     if not rounds:
         raise ValueError(f"{table.name}: the edit left no specular energy to measure")
     pick = _pick_round(rounds)
