@@ -219,7 +219,7 @@ def load_network(path, name: str | None = None) -> Network:
     groups = _groups(path)
     if name is None:
         if len(groups) != 1:
-            raise WeightsError(path, f"holds {len(groups)} materials; choose one, e.g. "
+            raise WeightsError(path, f"holds {len(groups)} materials; choose one as FILE:NAME, e.g. "
                                      f"{', '.join(sorted(groups)[:4])}, ...")
         name = next(iter(groups))
     if name not in groups:
@@ -307,7 +307,7 @@ def decode(net: Network, path=None) -> MerlTable:
         raise WeightsError(src, f"material {net.name!r}: the network gives {int(bad.sum())} value(s) "
                                 f"beyond any reflectance (> {MAX_REFLECTANCE:g})")
     valid = np.broadcast_to(ok, (3, N_CELLS)).copy()
-    return MerlTable(rho, valid, os.fspath(path) if path is not None else None)
+    return MerlTable(rho, valid, os.fspath(src) if src is not None else None, label=net.name)
 
 
 def parse_source(spec: str):
@@ -322,3 +322,20 @@ def parse_source(spec: str):
     if sep and head and tail and is_weights_source(head):
         return head, tail
     return spec, None
+
+
+def read_table(spec, material: str | None = None) -> MerlTable:
+    """A material source as a MERL table: a MERL file, or a network (``FILE:NAME`` or ``material``).
+
+    The one entry point for the command line and the extension; faults are ``MerlError``.
+    """
+    from .merl import read_merl
+
+    path, name = parse_source(spec)
+    name = material or name
+    if is_weights_source(path):
+        return decode(load_network(path, name))
+    if name is not None:
+        raise MerlError(path, f"a material name ({name!r}) was given, but this is not a weights file "
+                              f"(.npz, .h5 or a folder of .npy)")
+    return read_merl(path)
