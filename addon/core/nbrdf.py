@@ -339,3 +339,55 @@ def read_table(spec, material: str | None = None) -> MerlTable:
         raise MerlError(path, f"a material name ({name!r}) was given, but this is not a weights file "
                               f"(.npz, .h5 or a folder of .npy)")
     return read_merl(path)
+
+
+def source_exists(spec) -> bool:
+    """Whether the file (or folder) behind a source spec is there."""
+    return os.path.exists(parse_source(spec)[0])
+
+
+def source_file(spec) -> str:
+    """The file (or folder) behind a source spec: ``FILE`` of ``FILE:NAME``, else the spec."""
+    return parse_source(spec)[0]
+
+
+def _npy_material(path):
+    """(folder, material) for one ``NAME_fc1.npy``-style file of a weights folder, else None."""
+    folder, fname = os.path.split(os.fspath(path))
+    stem = fname[:-4] if fname.endswith(".npy") else None
+    if stem is None:
+        return None
+    for leaf in _NPY_KEYS.values():
+        if stem == leaf or stem.endswith("_" + leaf):
+            return folder or ".", stem[: -len(leaf)].rstrip("_") or None
+    return None
+
+
+def chooser_materials(path) -> list[str]:
+    """Materials offered for a path picked in a file browser ([] for a MERL file or a fault)."""
+    path = os.fspath(path)
+    picked = _npy_material(path)
+    if picked:
+        path = picked[0]
+    if not path or not is_weights_source(path) or not os.path.exists(path):
+        return []
+    try:
+        return list_materials(path)
+    except MerlError:
+        return []
+
+
+def source_spec(path, material: str | None = None) -> str:
+    """The source spec (a MERL path, or ``FILE:NAME``) of a path picked in a file browser.
+
+    A ``.npy`` of a weights folder stands for its material in that folder; a weights set with
+    several materials needs ``material``. Faults are ``MerlError``s naming the file.
+    """
+    path = os.fspath(path)
+    picked = _npy_material(path)
+    if picked:
+        path, material = picked[0], material or picked[1]
+    if not is_weights_source(path):
+        return path
+    net = load_network(path, material or None)
+    return f"{path}:{net.name}"
