@@ -89,7 +89,7 @@ def collect_inputs(items):
     return paths, problems
 
 
-def load_profiles(path, views=None, name=None):
+def load_profiles(path, views=None, name=None, floor="min"):
     """Profiles of a material source (MERL file, FILE:NAME of weights), or a profiles JSON."""
     from .core.nbrdf import read_table
     from .core.profiles import Profiles, compute_profiles
@@ -105,26 +105,28 @@ def load_profiles(path, views=None, name=None):
         except (ValueError, KeyError, TypeError) as exc:
             raise MerlError(path, f"not a profiles JSON ({exc})") from None
     table = read_table(path)
-    prof = compute_profiles(table, views)
+    prof = compute_profiles(table, views, floor=floor)
     prof.name = name or material_name(path)
     return prof
 
 
-def _work(path):
+def _work(path, floor="min"):
     from .core.fits import fit_material
     from .core.merl import MerlError
 
     t = time.perf_counter()
     try:
-        prof = load_profiles(path)
+        prof = load_profiles(path, floor=floor)
     except MerlError as exc:
         return path, None, None, str(exc), 0.0
     fit = fit_material(prof)
     return path, prof.to_json(), fit, None, time.perf_counter() - t
 
 
-def run_parallel(paths, workers=None, progress=None):
+def run_parallel(paths, workers=None, progress=None, floor="min"):
     """(path, profiles_json, fit, error, seconds) per input, in input order."""
+    import functools
+
     from .core.integrate import default_views, get_operator
 
     get_operator(default_views())  # build or load once, before forking: children share it
@@ -135,13 +137,13 @@ def run_parallel(paths, workers=None, progress=None):
 
         ctx = mp.get_context("fork")
         with ctx.Pool(workers) as pool:
-            for done, res in enumerate(pool.imap_unordered(_work, paths), 1):
+            for done, res in enumerate(pool.imap_unordered(functools.partial(_work, floor=floor), paths), 1):
                 results[res[0]] = res
                 if progress:
                     progress(done, len(paths))
     else:
         for done, p in enumerate(paths, 1):
-            results[p] = _work(p)
+            results[p] = _work(p, floor)
             if progress:
                 progress(done, len(paths))
     return [results[p] for p in paths]
@@ -211,7 +213,7 @@ def _plot_all(profiles, fits, out_dir, workers):
             _plot_group(j)
 
 
-def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print):
+def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, floor="min"):
     """Profiles, fits, per-material JSON, summary CSV and plots for a set. Returns problems."""
     from .cli import write_json_atomic
     from .core.fits import fit_set
@@ -224,7 +226,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print):
         return problems or ["no input files"]
     qualified = _qualify(paths)
     t0 = time.perf_counter()
-    results = run_parallel(paths, workers, progress)
+    results = run_parallel(paths, workers, progress, floor=floor)
     profiles, per_fit, seconds = {}, {}, []
     for path, pj, fit, err, sec in results:
         if err:

@@ -93,7 +93,7 @@ def cmd_profiles(args):
     table = read_table(args.file)
     views = default_views(args.elevations, args.max_elevation)
     prof = compute_profiles(table, views, max_order=args.max_order, split=not args.no_split,
-                            interp=args.interp, progress=_progress("building slice rules (once)"))
+                            interp=args.interp, floor=args.floor, progress=_progress("building slice rules (once)"))
     write_json_atomic(prof.to_json(), args.out)
     print(f"wrote {args.out}")
     if args.plot:
@@ -113,7 +113,7 @@ def cmd_fit(args):
     if problems:
         raise InputError(problems[0])
     names = input_names(paths)
-    profiles = {n: load_profiles(p, name=n) for n, p in zip(names, paths)}
+    profiles = {n: load_profiles(p, name=n, floor=args.floor) for n, p in zip(names, paths)}
     result = fit_set(profiles)
     write_json_atomic(result, args.out)
     for n in names:
@@ -134,7 +134,7 @@ def cmd_analyze(args):
     from .analyze import analyze
 
     problems = analyze(args.inputs, args.out, workers=args.jobs, progress=_progress("analysing", always=True),
-                       plots=not args.no_plots)
+                       plots=not args.no_plots, floor=args.floor)
     for p in problems:
         print(f"error: {p}", file=sys.stderr)
     return 2 if problems else 0
@@ -178,8 +178,13 @@ def cmd_edit(args):
         shown[:] = [done, total]
         bar(done, total)
 
+    prof = None
+    if args.floor != "min":
+        from .core.profiles import compute_profiles
+
+        prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd
     try:
-        res = edit(table, targets, progress=on_round if bar else None)
+        res = edit(table, targets, prof, progress=on_round if bar else None)
     finally:
         if bar and shown[0] < shown[1]:
             sys.stderr.write("\n")  # an error cut the rounds short: end the bar's line before it
@@ -207,6 +212,13 @@ def cmd_bench(args):
     return bench.main(args)
 
 
+def _floor_option(parser):
+    parser.add_argument("--floor", choices=("min", "robust"), default="min",
+                        help="diffuse floor kd: min, the paper's minimum over the 45° slice (default); robust, "
+                             "the 5th percentile by area of its cells within 70° of the normal (for measured "
+                             "data, where one grazing cell near 0 sets the minimum)")
+
+
 def build_parser():
     p = _Parser(prog="python -m addon",
                                 description="BRDF Moments: moment profiles of measured (MERL) BRDFs.")
@@ -221,11 +233,13 @@ def build_parser():
     sp.add_argument("--no-split", action="store_true", help="do not remove the diffuse floor kd")
     sp.add_argument("--interp", choices=("nearest", "trilinear"), default="nearest")
     sp.add_argument("--plot", help="also write a PNG of the profiles")
+    _floor_option(sp)
     sp.set_defaults(func=cmd_profiles)
 
     sf = sub.add_parser("fit", help="Sec. 3.4 fits of one or more materials, as JSON")
     sf.add_argument("files", nargs="+", help="MERL .binary files (or profiles JSON written by 'profiles'); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
     sf.add_argument("--out", required=True, help="output JSON path")
+    _floor_option(sf)
     sf.set_defaults(func=cmd_fit)
 
     sa = sub.add_parser("analyze", help="profiles, fits, plots and a summary table for a set of materials")
@@ -233,6 +247,7 @@ def build_parser():
     sa.add_argument("--out", required=True, help="output folder")
     sa.add_argument("--jobs", type=_positive_int, default=None, help="worker processes (default: all cores)")
     sa.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    _floor_option(sa)
     sa.set_defaults(func=cmd_analyze)
 
     se = sub.add_parser("edit", help="re-synthesize a MERL file from moment sliders")
@@ -245,6 +260,7 @@ def build_parser():
     se.add_argument("--mu", type=_finite, help="target mean slope in [-1, 0]")
     se.add_argument("--sigma2", type=_finite, help="target average variance in (0, pi^2/12]")
     se.add_argument("--mode", choices=("warp", "model"), default="warp")
+    _floor_option(se)
     se.set_defaults(func=cmd_edit)
 
     sr = sub.add_parser("render", help="original (and edited) spheres rendered by Cycles (needs the bpy module)")

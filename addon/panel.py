@@ -12,6 +12,7 @@ def draw_material(layout, mat):
     row.prop(state, "source_path", text="")
     op = row.operator("brdf_moments.load_merl", text="", icon="FILEBROWSER")
     op.material = mat.name
+    layout.prop(state, "floor")
     if not state.analysed:
         row = layout.row()
         row.enabled = bool(state.source_path)

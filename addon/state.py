@@ -34,6 +34,12 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     # A MERL file, or FILE:NAME for a material of a Neural-BRDF weights file (see Load).
     source_path: bpy.props.StringProperty(name="MERL file", subtype="FILE_PATH")
     analysed: bpy.props.BoolProperty(default=False)
+    floor: bpy.props.EnumProperty(
+        name="Diffuse floor", default="min", update=lambda self, ctx: _floor_changed(self),
+        description="how kd is taken from the 45° slice; changing it asks for a new analysis",
+        items=[("min", "Minimum (paper)", "the minimum over the 45° slice (paper Sec. 2.2)"),
+               ("robust", "Robust", "the 5th percentile by area of the slice's cells within 70° of the normal: "
+                                    "one low grazing cell of a measured table cannot set it")])
     profiles_data: bpy.props.StringProperty(options={"HIDDEN"})
     kd: bpy.props.FloatVectorProperty(name="kd", size=3, subtype="COLOR", min=0.0, soft_max=1.0)
     fit_alpha_b: bpy.props.FloatProperty(name="α̃b")
@@ -153,6 +159,11 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
                            sigma2=None if at_fit_s2 or self.lock else self.sigma2,
                            mode=self.mode, lock=self.lock,
                            correlation_a=self.correlation_a if self.lock else None)
+
+
+def _floor_changed(state):
+    # The stored profiles, fits and edits were made with the other floor: analyse again.
+    state.analysed = False
 
 
 def _slider_moved(state):

@@ -19,7 +19,7 @@ class BRDFMOMENTS_OT_analyse(BackgroundJob, bpy.types.Operator):
     def start(self, context):
         mat = target_material(context, self.material)
         self._mat_name, self._path = mat.name, mat.brdf_moments.source_path
-        return analysis_work(self._path)
+        return analysis_work(self._path, mat.brdf_moments.floor)
 
     def finish(self, context, result):
         self.report({"INFO"}, store_analysis(bpy.data.materials[self._mat_name], self._path, result))

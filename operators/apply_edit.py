@@ -42,16 +42,18 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             raise ValueError(f"{source}: the source MERL file is missing; load it again to edit")
         targets = state.slider_targets()
         scale = state.scale_to_one
+        floor = state.floor
         # Content-addressed output: the same file and sliders give the same name, and an
         # edit never overwrites another material's table (or the input).
         st = os.stat(source)
-        key = json.dumps([spec, st.st_size, st.st_mtime_ns, repr(targets), scale], sort_keys=True)
+        key = json.dumps([spec, st.st_size, st.st_mtime_ns, repr(targets), scale]
+                         + ([floor] if floor != "min" else []), sort_keys=True)
         out = os.path.join(edits_folder(), f"{safe_name(mat.name)}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.binary")
         self._mat_name = mat.name
 
         def work(report_progress):
             table = read_table(spec)
-            prof = compute_profiles(table)
+            prof = compute_profiles(table, floor=floor)
             fit = fit_material(prof)
             report_progress(1, 10)
             res = edit(table, targets, prof, fit, progress=lambda d, t: report_progress(1 + 8 * d // t, 10))

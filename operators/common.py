@@ -28,7 +28,7 @@ def analysed_material(context, name=""):
     return mat
 
 
-def analysis_work(path):
+def analysis_work(path, floor="min"):
     """A function of ``report_progress`` that reads, analyses and fits ``path`` (no bpy)."""
     from ..addon.core.fits import fit_material
     from ..addon.core.nbrdf import read_table, source_exists
@@ -45,7 +45,7 @@ def analysis_work(path):
         report_progress(1, 100)
         # The slice operator is built once per machine (minutes), then memory-mapped: the
         # progress bar matters on that first run.
-        prof = compute_profiles(table, progress=lambda done, total: report_progress(1 + 97 * done // total, 100))
+        prof = compute_profiles(table, floor=floor, progress=lambda done, total: report_progress(1 + 97 * done // total, 100))
         fit = fit_material(prof)
         report_progress(100, 100)
         return table.name, prof, fit

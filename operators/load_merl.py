@@ -79,9 +79,10 @@ class BRDFMOMENTS_OT_load_merl(BackgroundJob, bpy.types.Operator, ImportHelper):
         return BackgroundJob.execute(self, context)
 
     def start(self, context):
-        self._mat_name = target_material(context, self.material).name
+        mat = target_material(context, self.material)
+        self._mat_name = mat.name
         self._source = self._spec()
-        return analysis_work(self._source)
+        return analysis_work(self._source, mat.brdf_moments.floor)
 
     def finish(self, context, result):
         self.report({"INFO"}, store_analysis(bpy.data.materials[self._mat_name], self._source, result))

@@ -69,3 +69,18 @@ def test_bad_weights_are_an_error_report(material, tmp_path):
     with pytest.raises(RuntimeError, match="bad.npz: not a readable .npz"):
         bpy.ops.brdf_moments.load_merl(filepath=str(bad), material="Measured")
     assert not mat.brdf_moments.analysed
+
+
+def test_the_panel_floor_reaches_the_analysis_and_a_change_asks_for_a_new_one(material):
+    from addon.core.profiles import diffuse_floor
+
+    bpy, mat = material
+    state = mat.brdf_moments
+    state.floor = "robust"
+    assert bpy.ops.brdf_moments.load_merl(filepath=RGL, network="spectralon", material="Measured") == {"FINISHED"}
+    table = nbrdf.read_table(f"{RGL}:spectralon")
+    np.testing.assert_allclose(tuple(state.kd), diffuse_floor(table, method="robust"), rtol=1e-5)
+    state.floor = "min"
+    assert not state.analysed
+    assert bpy.ops.brdf_moments.analyse(material="Measured") == {"FINISHED"}
+    np.testing.assert_allclose(tuple(state.kd), diffuse_floor(table), rtol=1e-5, atol=1e-9)
