@@ -7,6 +7,7 @@ Sections:
            operator (all 90 views timed), Monte Carlo and the uniform grid;
   memory   peak resident memory of one material's analysis, in a fresh process.
   preview  Cycles preview render time against error, both paths (addon/bench_preview.py).
+  measured the 59 measured materials through analyze, both diffuse floors (addon/bench_measured.py).
 
 Times are medians over repeats in this one run; the machine is shared, so compare ratios.
 """
@@ -22,7 +23,7 @@ import time
 
 import numpy as np
 
-ALL_SECTIONS = ("closed", "tables", "memory", "fits", "edit", "preview")
+ALL_SECTIONS = ("closed", "tables", "memory", "fits", "edit", "preview", "measured")
 
 
 def _median_time(fn, repeat):
@@ -417,6 +418,12 @@ def _bench_preview(quick):
     return bench_preview(quick)
 
 
+def _bench_measured(quick):
+    from .bench_measured import bench_measured
+
+    return bench_measured(quick)
+
+
 def main(args):
     sections = args.only or ALL_SECTIONS
     unknown = set(sections) - set(ALL_SECTIONS)
@@ -427,6 +434,7 @@ def main(args):
     for name in sections:
         lines = {"closed": lambda: bench_closed(args.quick), "tables": lambda: bench_tables(args.quick),
                  "memory": bench_memory, "fits": lambda: bench_fits(args.quick),
-                 "edit": lambda: bench_edit(args.quick), "preview": lambda: _bench_preview(args.quick)}[name]()
+                 "edit": lambda: bench_edit(args.quick), "preview": lambda: _bench_preview(args.quick),
+                 "measured": lambda: _bench_measured(args.quick)}[name]()
         print("\n".join(lines) + "\n", flush=True)
     return 0
