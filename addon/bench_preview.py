@@ -1,7 +1,8 @@
 """``python -m addon bench --only preview``: preview render time against error (SPEC §6).
 
 Scene: the 256 x 256 preview, original and edited spheres side by side, under Blender's
-"studio" HDRI. Materials: ggx_mirror, ggx_glossy, ggx_rough; the edited sphere is the model-mode
+"studio" HDRI. Materials: ggx_mirror, ggx_glossy, ggx_rough and one measured material,
+rgl/satin_gold (a Neural-BRDF network of the RGL database, Sztrajman et al. 2021); the edited sphere is the model-mode
 edit of the demo (sigma2 x 2, strength 0.8), made by ``addon.core.edit`` and cached.
 
 Ground truth: ``render_reference`` (the converged numpy Monte Carlo) at GT_SPP samples per
@@ -19,7 +20,7 @@ import time
 
 import numpy as np
 
-NAMES = ("ggx_mirror", "ggx_glossy", "ggx_rough")
+NAMES = ("ggx_mirror", "ggx_glossy", "ggx_rough", "rgl/satin_gold")
 ENV = "studio"
 SIZE = 256
 GT_SPP = 16384
@@ -52,7 +53,7 @@ def edited_table(table, name):
 
     h = hashlib.sha256(np.ascontiguousarray(table.rho).tobytes())
     h.update(repr(sorted(EDIT.items())).encode() + _source_hash(edit_mod).encode())
-    path = os.path.join(_cache_dir(), f"edited-{name}-{h.hexdigest()[:16]}.binary")
+    path = os.path.join(_cache_dir(), f"edited-{name.replace('/', '-')}-{h.hexdigest()[:16]}.binary")
     if os.path.exists(path):
         return read_merl(path)
     prof = compute_profiles(table)
@@ -104,7 +105,7 @@ def ground_truth(layout, brdfs, env, tag, spp=GT_SPP):
     for b in brdfs:
         h.update(b.content_key().encode())
     h.update(env.content_key().encode())
-    path = os.path.join(_cache_dir(), f"gt-{tag}-{h.hexdigest()[:16]}.npz")
+    path = os.path.join(_cache_dir(), f"gt-{tag.replace('/', '-')}-{h.hexdigest()[:16]}.npz")
     if os.path.exists(path):
         with np.load(path) as z:
             return z["image"], float(z["noise"]), 0.0
@@ -154,7 +155,7 @@ def bench_preview(quick=False):
     env, env_path = _environment(bpy)
     layout = sphere_layout(SIZE, SIZE, 2)
     mask = layout.interior_mask()
-    names = NAMES[:2] if quick else NAMES
+    names = (NAMES[0], NAMES[-1]) if quick else NAMES  # quick: one analytic, one measured
     rep = 1 if quick else 3
     bake_ks = (16, 32, 64) if quick else (8, 16, 32, 64, 128)
     ref_spps = (256,) if quick else (256, 1024)

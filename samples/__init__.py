@@ -7,8 +7,8 @@ the same name always gives the same bytes.
 Measured materials are named ``SET/NAME``: ``rgl/NAME`` (51 isotropic materials of the RGL
 database, EPFL) and ``nielsen/NAME`` (8 of Nielsen, Jensen and Ramamoorthi 2015), decoded
 from the pre-trained networks of Sztrajman, Rainer, Ritschel and Weyrich 2021 (MIT licence,
-``samples/measured/``). Their cache file names carry a hash of the weights, so a changed
-weights file decodes afresh.
+``samples/measured/``). Their tables are cached under a hash of the weights
+(``measured/HASH/rgl-NAME.binary``), so a changed weights file decodes afresh.
 """
 
 from __future__ import annotations
@@ -93,19 +93,21 @@ def _measured_path(name: str, force: bool) -> str:
         net = load_network(weights, key)
     except WeightsError as exc:
         raise KeyError(f"unknown sample {name!r}: {exc}") from None
-    folder = cache_dir()
-    os.makedirs(folder, exist_ok=True)
-    stem = "nbrdf-" + name.replace("/", "-")
-    path = os.path.join(folder, f"{stem}-{net.digest()}.binary")
+    # measured/<hash of the weights>/SET-NAME.binary: a clean material name for the table,
+    # and changed weights land in another folder, so they are decoded afresh.
+    root = os.path.join(cache_dir(), "measured")
+    fname = name.replace("/", "-") + ".binary"
+    path = os.path.join(root, net.digest(), fname)
     if force or not os.path.exists(path):
+        os.makedirs(os.path.dirname(path), exist_ok=True)
         write_merl(decode(net), path)
         # Drop tables decoded from older weights of the same material: no leftovers.
-        for other in os.listdir(folder):
-            full = os.path.join(folder, other)
-            if (other.startswith(stem + "-") and other.endswith(".binary") and full != path
-                    and len(other) == len(os.path.basename(path)) and os.path.isfile(full)):
+        for digest in os.listdir(root):
+            old = os.path.join(root, digest, fname)
+            if digest != net.digest() and os.path.isfile(old):
                 try:
-                    os.remove(full)
+                    os.remove(old)
+                    os.rmdir(os.path.dirname(old))  # only if now empty
                 except OSError:
                     pass
     return path

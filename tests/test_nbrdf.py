@@ -205,7 +205,8 @@ def test_measured_sample_cache(tmp_path, monkeypatch):
     new = samples.sample_path("test/notebook")
     assert new != path and not os.path.exists(path)
     assert read_merl(new).rho[0].max() > table.rho[0].max()
-    assert os.listdir(tmp_path / "cache") == [os.path.basename(new)]
+    assert os.path.basename(new) == "test-notebook.binary" and read_merl(new).name == "test-notebook"
+    assert os.listdir(tmp_path / "cache" / "measured") == [os.path.basename(os.path.dirname(new))]
     with pytest.raises(KeyError, match="rgl/NAME"):
         samples.sample_path("nope/thing")
     with pytest.raises(KeyError, match="no material"):
