@@ -118,6 +118,27 @@ def test_single_npz_npy_folder_and_set_agree(tmp_path):
         np.testing.assert_array_equal(nbrdf.decode(other).rho, ref)
 
 
+@pytest.mark.parametrize("layout", ["save_weights", "model", "keras3"])
+def test_keras_layouts_give_the_layers_in_chain_order(layout):
+    net = nbrdf.load_network(RGL, "satin_blue")
+    names = {"save_weights": "dense_{n}/dense_{n}/{v}:0", "model": "model_weights/dense_{n}/dense_{n}/{v}:0",
+             "keras3": "layers/dense_{n}/vars/{i}"}[layout]
+    datasets = {}
+    # Layer numbers that do not follow the order (Keras numbers them per session).
+    for i, n in zip((1, 2, 3), (7, 5, 9)):
+        datasets[names.format(n=n, v="kernel", i=0)] = getattr(net, f"W{i}")
+        datasets[names.format(n=n, v="bias", i=1)] = getattr(net, f"b{i}")
+        if layout == "model":  # Adam's slots, shaped like the weights
+            for slot in ("m", "v"):
+                datasets[f"optimizer_weights/Adam/dense_{n}/kernel/{slot}:0"] = getattr(net, f"W{i}") * 0
+                datasets[f"optimizer_weights/Adam/{slot}/dense_{n}/bias:0"] = getattr(net, f"b{i}") * 0
+    layers = nbrdf.dense_layers(datasets)
+    for k in nbrdf.LAYER_KEYS:
+        np.testing.assert_array_equal(layers[k], getattr(net, k))
+    with pytest.raises(MerlError, match="expected 3 dense layers"):
+        nbrdf.dense_layers({k: v for k, v in datasets.items() if "dense_9" not in k}, "x.h5")
+
+
 def test_keras_h5(tmp_path):
     h5py = pytest.importorskip("h5py")
     net = nbrdf.load_network(RGL, "satin_blue")
@@ -211,3 +232,13 @@ def test_measured_sample_cache(tmp_path, monkeypatch):
         samples.sample_path("nope/thing")
     with pytest.raises(KeyError, match="no material"):
         samples.sample_path("test/absent")
+
+
+def test_h5_without_h5py_is_a_one_line_error(tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "h5py", None)  # import h5py now raises ImportError
+    path = tmp_path / "model.h5"
+    path.write_bytes(b"\x89HDF\r\n\x1a\n")
+    with pytest.raises(MerlError, match=r"model.h5: reading Keras .h5 files needs the h5py package"):
+        nbrdf.load_network(path)

@@ -143,41 +143,50 @@ def _h5_groups(path):
     except ImportError:
         raise WeightsError(path, "reading Keras .h5 files needs the h5py package (not installed); "
                                  "convert with the Neural-BRDF project's h5_to_npy.py, or use an .npz") from None
-    kernels, biases = [], []
+    datasets = {}
     try:
         with h5py.File(path, "r") as f:
             def visit(name, obj):
                 if isinstance(obj, h5py.Dataset):
-                    leaf = name.rsplit("/", 1)[-1]
-                    if leaf.startswith("kernel"):
-                        kernels.append((name, np.asarray(obj[()])))
-                    elif leaf.startswith("bias"):
-                        biases.append((name, np.asarray(obj[()])))
+                    datasets[name] = np.asarray(obj[()])
             f.visititems(visit)
     except (OSError, ValueError) as exc:
         raise WeightsError(path, f"not a readable HDF5 file ({exc})") from None
-    if len(kernels) != 3 or len(biases) != 3:
-        raise WeightsError(path, f"expected 3 dense layers, found {len(kernels)} kernel(s) and {len(biases)} bias(es)")
+    base = os.path.basename(os.fspath(path))
+    return {os.path.splitext(base)[0]: dense_layers(datasets, path)}
+
+
+def dense_layers(datasets: dict, path=None) -> dict:
+    """W1 b1 .. W3 b3 from the datasets of a Keras file, ``{"group/name": array}``.
+
+    Any Keras layout (save_weights, a whole model, Keras 3 .weights.h5 with datasets "0", "1"):
+    a dense layer is a group holding one 2-D kernel and one 1-D bias of its width.
+    """
+    by_group: dict[str, list] = {}
+    for name, arr in datasets.items():
+        # A whole model's file also holds the optimizer's slots, shaped like the weights.
+        if arr.ndim in (1, 2) and "optimizer" not in name.lower():
+            by_group.setdefault(name.rpartition("/")[0], []).append(arr)
+    layers = []
+    for arrays in by_group.values():
+        kernels = [a for a in arrays if a.ndim == 2]
+        biases = [a for a in arrays if a.ndim == 1]
+        if len(kernels) == 1 and len(biases) == 1 and biases[0].shape[0] == kernels[0].shape[1]:
+            layers.append((kernels[0], biases[0]))
+    if len(layers) != 3:
+        raise WeightsError(path, f"expected 3 dense layers (a kernel and a bias each), found {len(layers)}")
     # Order the layers by the chain of shapes (6 -> h1 -> h2 -> 3), not by names, which Keras
     # numbers per session (dense_4, dense_5, ...).
-    by_group = {n.rsplit("/", 1)[0]: a for n, a in biases}
-    order, width = [], 6
-    pool = list(kernels)
-    while pool:
-        nxt = [k for k in pool if k[1].ndim == 2 and k[1].shape[0] == width]
-        if len(nxt) != 1:
-            raise WeightsError(path, "dense layers do not chain 6 -> ... -> 3")
-        order.append(nxt[0])
-        pool.remove(nxt[0])
-        width = nxt[0][1].shape[1]
+    import itertools
+
+    chains = [p for p in itertools.permutations(layers) if p[0][0].shape[0] == 6 and p[2][0].shape[1] == 3
+              and p[0][0].shape[1] == p[1][0].shape[0] and p[1][0].shape[1] == p[2][0].shape[0]]
+    if not chains:
+        raise WeightsError(path, "the dense layers do not chain 6 -> ... -> 3")
     arrays = {}
-    for i, (name, kernel) in enumerate(order, start=1):
-        group = name.rsplit("/", 1)[0]
-        if group not in by_group:
-            raise WeightsError(path, f"layer {group!r} has no bias")
-        arrays[f"W{i}"], arrays[f"b{i}"] = kernel, by_group[group]
-    base = os.path.basename(os.fspath(path))
-    return {os.path.splitext(base)[0]: arrays}
+    for i, (kernel, bias) in enumerate(chains[0], start=1):
+        arrays[f"W{i}"], arrays[f"b{i}"] = kernel, bias
+    return arrays
 
 
 def _groups(path):
