@@ -45,6 +45,18 @@ class WeightsError(MerlError):
     """A Neural-BRDF weights source that cannot be used (file and fault in the message)."""
 
 
+def _names(names) -> str:
+    from .merl import display_path
+
+    return ", ".join(display_path(n) for n in names)  # control characters escaped: one line
+
+
+def _why(exc) -> str:
+    """An exception as a short one-line reason (library messages may span lines)."""
+    text = " ".join(str(exc).split()) or exc.__class__.__name__
+    return text[:200]
+
+
 @dataclass
 class Network:
     name: str
@@ -76,7 +88,7 @@ def _network(path, name, arrays: dict) -> Network:
     try:
         a = {k: np.asarray(arrays[k]) for k in LAYER_KEYS}
     except Exception as exc:  # an unreadable array inside the container
-        raise WeightsError(path, f"material {name!r}: unreadable weights ({exc})") from None
+        raise WeightsError(path, f"material {name!r}: unreadable weights ({_why(exc)})") from None
     for k, v in a.items():
         if v.dtype.kind not in "fiu":
             raise WeightsError(path, f"material {name!r}: {k} is not numeric ({v.dtype})")
@@ -99,7 +111,7 @@ def _npz_groups(path):
     try:
         z = np.load(path, allow_pickle=False)
     except Exception as exc:
-        raise WeightsError(path, f"not a readable .npz ({exc.__class__.__name__}: {exc})") from None
+        raise WeightsError(path, f"not a readable .npz ({exc.__class__.__name__}: {_why(exc)})") from None
     if not hasattr(z, "files"):
         raise WeightsError(path, "a single .npy array, not an .npz of network weights")
     groups: dict[str, dict] = {}
@@ -110,7 +122,7 @@ def _npz_groups(path):
                 try:
                     groups.setdefault(prefix, {})[leaf] = z[key]
                 except Exception as exc:
-                    raise WeightsError(path, f"cannot read array {key!r} ({exc})") from None
+                    raise WeightsError(path, f"cannot read array {key!r} ({_why(exc)})") from None
     return groups
 
 
@@ -131,7 +143,7 @@ def _npy_groups(folder):
                 try:
                     arr = np.load(os.path.join(folder, fname), allow_pickle=False)
                 except Exception as exc:
-                    raise WeightsError(os.path.join(folder, fname), f"not a readable .npy ({exc})") from None
+                    raise WeightsError(os.path.join(folder, fname), f"not a readable .npy ({_why(exc)})") from None
                 groups.setdefault(prefix, {})[key] = arr
                 break
     return groups
@@ -151,7 +163,7 @@ def _h5_groups(path):
                     datasets[name] = np.asarray(obj[()])
             f.visititems(visit)
     except (OSError, ValueError) as exc:
-        raise WeightsError(path, f"not a readable HDF5 file ({exc})") from None
+        raise WeightsError(path, f"not a readable HDF5 file ({_why(exc)})") from None
     base = os.path.basename(os.fspath(path))
     return {os.path.splitext(base)[0]: dense_layers(datasets, path)}
 
@@ -229,13 +241,13 @@ def load_network(path, name: str | None = None) -> Network:
     if name is None:
         if len(groups) != 1:
             raise WeightsError(path, f"holds {len(groups)} materials; choose one as FILE:NAME, e.g. "
-                                     f"{', '.join(sorted(groups)[:4])}, ...")
+                                     f"{_names(sorted(groups)[:4])}, ...")
         name = next(iter(groups))
     if name not in groups:
         import difflib
 
         close = difflib.get_close_matches(name, sorted(groups), n=4, cutoff=0.5) or sorted(groups)[:4]
-        raise WeightsError(path, f"no material {name!r}; it has {len(groups)}, e.g. {', '.join(close)}")
+        raise WeightsError(path, f"no material {name!r}; it has {len(groups)}, e.g. {_names(close)}")
     return _network(path, name, groups[name])
 
 
