@@ -16,6 +16,24 @@ import math
 import numpy as np
 
 
+def check_radiance(pixels, name="environment"):
+    """Refuse a map no renderer can show the same way: NaN or inf anywhere, a negative value
+    beyond round-off, or no light at all. Both preview paths call this on every map file, so
+    a map that one path would render is never refused by the other."""
+    a = np.asarray(pixels)[..., :3]
+    finite = np.isfinite(a)
+    if not finite.all():
+        raise ValueError(f"{name}: the map holds {int((~finite).sum())} NaN or inf values")
+    top = float(a.max(initial=0.0))
+    if top <= 0.0:
+        raise ValueError(f"{name}: the map holds no light (every value is zero or negative)")
+    low = float(a.min(initial=0.0))
+    if low < -1e-6 * top:
+        count = int((a < -1e-6 * top).sum())
+        raise ValueError(f"{name}: the map holds {count} negative values (down to {low:.3g}); radiance cannot be "
+                         f"negative")
+
+
 class Environment:
     def __init__(self, pixels, name: str = ""):
         a = np.asarray(pixels)
