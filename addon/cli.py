@@ -305,7 +305,9 @@ def main(argv=None):
             return args.func(args)
     except KeyboardInterrupt:
         # Writers clean up on the way out (atomic_path, temp_folder): nothing is left behind.
-        print(f"interrupted: {args.command} stopped, nothing written", file=sys.stderr)
+        if sys.stderr.isatty():
+            sys.stderr.write("\n")  # end a progress bar's line first
+        print(f"interrupted: {args.command} stopped; no partial output was left", file=sys.stderr)
         return 130
     except RecursionError:
         print(f"error: {args.command}: input nested too deeply", file=sys.stderr)

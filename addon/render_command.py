@@ -44,7 +44,12 @@ def run_in_child(args, input_error):
     child = None
     try:
         child = subprocess.Popen([sys.executable, "-m", "addon", *args.argv], env=env)
-        return child.wait()
+        code = child.wait()
+        if code < 0:  # killed by a signal (Blender itself crashed): one line, and nothing left
+            sweep_pending(only_pid=child.pid)
+            raise input_error(f"{args.file}: the render stopped unexpectedly (Blender died of signal {-code}); "
+                              f"nothing was written")
+        return code
     except KeyboardInterrupt:
         if child is not None:
             child.send_signal(signal.SIGKILL) if hasattr(signal, "SIGKILL") else child.kill()

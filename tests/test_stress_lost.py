@@ -671,3 +671,30 @@ def test_an_interrupted_build_removes_its_temporary_folder(tmp_path, stress_log)
         assert [n for n in os.listdir(tmp_path) if n.startswith((".tmp", "operator"))] == []
         stress_log.record("nothing lost: 9 leftovers", "valid", f"cold build stopped by {exc.__name__}")
     integrate._MEMO.clear()
+
+
+def test_a_render_child_that_dies_is_one_line(gold, tmp_path, monkeypatch, stress_log):
+    # Should Blender itself die (a signal), the command still ends in one line and exit 2.
+    import argparse
+
+    import addon.render_command as rc
+
+    class Died:
+        pid = 2 ** 22 + 12345  # no such process: its journal entries, if any, are swept
+
+        def __init__(self, *a, **k):
+            pass
+
+        def wait(self):
+            return -11
+
+    monkeypatch.setattr(subprocess, "Popen", Died)
+
+    class Refused(Exception):
+        pass
+
+    args = argparse.Namespace(file=str(gold), edited=None, env=None, out=str(tmp_path / "o.png"), argv=["render"])
+    with pytest.raises(Refused, match="signal 11"):
+        rc.run_in_child(args, Refused)
+    assert list(tmp_path.iterdir()) == []
+    stress_log.record(ENV_CAT, "error", "render child killed by a signal: one line")
