@@ -59,7 +59,9 @@ class BRDFMOMENTS_OT_build_preview(bpy.types.Operator):
         size = check_int(self.size, "Size", 16, MAX_RENDER_SIZE)  # a script may set any int
         samples = check_int(self.samples, "Samples", 1, MAX_SAMPLES)
         if self.render_to:
-            guard_output(bpy.path.abspath(self.render_to), [bpy.path.abspath(state.source_path), state.edited_path])
+            env_file = bpy.path.abspath(self.env) if self.env and os.path.splitext(self.env)[1] else None
+            guard_output(bpy.path.abspath(self.render_to), [bpy.path.abspath(state.source_path), state.edited_path,
+                                                            env_file])
         source = bpy.path.abspath(state.source_path)
         live = mode == "model" and path in ("osl", "auto")
         if os.path.isfile(source):

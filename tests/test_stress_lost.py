@@ -698,3 +698,29 @@ def test_a_render_child_that_dies_is_one_line(gold, tmp_path, monkeypatch, stres
         rc.run_in_child(args, Refused)
     assert list(tmp_path.iterdir()) == []
     stress_log.record(ENV_CAT, "error", "render child killed by a signal: one line")
+
+
+def test_npz_inputs_are_bounded_before_unpacking(tmp_path, stress_log):
+    # The generic opener other readers (the Neural-BRDF .npz) build on.
+    import zipfile
+
+    from addon.core.safeio import UnsafePath, load_npz
+
+    ok = tmp_path / "ok.npz"
+    np.savez(ok, w=np.arange(6.0).reshape(2, 3))
+    assert load_npz(ok, 1 << 20)["w"].shape == (2, 3)
+    bomb = tmp_path / "bomb.npz"
+    with zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("w.npy", bytes(64 << 20))  # 64 MB of zeros: a few tens of KB on disk
+    pickled = tmp_path / "pickled.npz"
+    np.savez(pickled, w=np.array([{"a": 1}], dtype=object))
+    text = tmp_path / "text.npz"
+    text.write_text("not a zip")
+    fifo = tmp_path / "fifo.npz"
+    os.mkfifo(fifo)
+    for case, path, fragment in [("zip bomb", bomb, "unpacks to"), ("object array", pickled, "not a valid"),
+                                 ("text", text, "not a valid"), ("FIFO", fifo, "FIFO"),
+                                 ("too large", ok, "too large")]:
+        with pytest.raises(UnsafePath, match=fragment):
+            load_npz(path, 100 if case == "too large" else 1 << 20)
+        stress_log.record("nothing lost: 6 hangs and bounds", "error", f".npz input: {case}")

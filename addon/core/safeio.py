@@ -191,6 +191,34 @@ def load_json(path, max_bytes=limits.MAX_PROFILES_JSON_BYTES, kind="JSON file", 
     return data
 
 
+def load_npz(path, max_bytes, kind="array file", max_members=64, max_unpacked=None):
+    """The arrays of an .npz (numbers only, never pickles) from a regular file of at most
+    ``max_bytes``; the zip's directory is checked first, so a small file claiming gigabytes
+    once unpacked is refused before anything is inflated. UnsafePath for any fault."""
+    import io
+    import zipfile
+
+    import numpy as np
+
+    max_unpacked = max_unpacked or 4 * max_bytes
+    data = read_input(path, max_bytes, kind)
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            infos = zf.infolist()
+            if len(infos) > max_members:
+                raise UnsafePath(path, f"not a valid {kind}: {len(infos)} members, the limit is {max_members}")
+            total = sum(i.file_size for i in infos)
+            if total > max_unpacked:
+                raise UnsafePath(path, f"not a valid {kind}: it unpacks to {total} bytes, the limit is {max_unpacked}")
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            return {k: np.asarray(z[k]) for k in z.files}
+    except UnsafePath:
+        raise
+    except Exception as exc:  # noqa: BLE001 - zip, zlib and numpy raise many kinds for bad bytes
+        why = (str(exc).splitlines() or [""])[0][:120]
+        raise UnsafePath(path, f"not a valid {kind} ({type(exc).__name__}: {why})") from None
+
+
 # --- images -----------------------------------------------------------------------------------
 
 EXR_MAGIC = b"\x76\x2f\x31\x01"
