@@ -86,6 +86,15 @@ def collect_inputs(items):
     for name, ps in names.items():
         if len(ps) > 1:
             problems.append(f"{ps[1]}: material name '{name}' is used by another input too ({ps[0]})")
+    from .core.limits import MAX_INPUTS
+    from .core.names import collisions
+
+    for a, b in collisions(list(names)):
+        problems.append(f"{names[b][0]}: material '{b}' would share its output file with '{a}' on a "
+                        f"case-insensitive file system; rename one")
+    if len(paths) > MAX_INPUTS:
+        problems.insert(0, f"{items[0]}: {len(paths)} input files, the limit is {MAX_INPUTS}")
+        paths = paths[:0]
     return paths, problems
 
 
@@ -95,15 +104,18 @@ def load_profiles(path, views=None, name=None, floor="min"):
     from .core.profiles import Profiles, compute_profiles
 
     if str(path).endswith(".json"):
-        import json
-
+        from .core.limits import MAX_PROFILES_JSON_BYTES
         from .core.merl import MerlError
+        from .core.safeio import UnsafePath, load_json
 
         try:
-            with open(path) as fh:
-                return Profiles.from_json(json.load(fh), name=name or material_name(path))
+            data = load_json(path, MAX_PROFILES_JSON_BYTES, "profiles JSON")
+        except UnsafePath as exc:
+            raise MerlError(path, exc.fault) from None
+        try:
+            return Profiles.from_json(data, name=name or material_name(path))
         except (ValueError, KeyError, TypeError) as exc:
-            raise MerlError(path, f"not a profiles JSON ({exc})") from None
+            raise MerlError(path, f"not a profiles JSON ({str(exc).splitlines()[0][:200]})") from None
     table = read_table(path)
     prof = compute_profiles(table, views, floor=floor)
     prof.name = name or material_name(path)
@@ -123,6 +135,14 @@ def _work(path, floor="min"):
     return path, prof.to_json(), fit, None, time.perf_counter() - t
 
 
+def _ignore_sigint():
+    # Ctrl-C reaches every process of the terminal's group: the parent alone handles it (it
+    # stops the pool), so workers print no tracebacks.
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def run_parallel(paths, workers=None, progress=None, floor="min"):
     """(path, profiles_json, fit, error, seconds) per input, in input order."""
     import functools
@@ -136,7 +156,7 @@ def run_parallel(paths, workers=None, progress=None, floor="min"):
         import multiprocessing as mp
 
         ctx = mp.get_context("fork")
-        with ctx.Pool(workers) as pool:
+        with ctx.Pool(workers, initializer=_ignore_sigint) as pool:
             for done, res in enumerate(pool.imap_unordered(functools.partial(_work, floor=floor), paths), 1):
                 results[res[0]] = res
                 if progress:
@@ -179,13 +199,11 @@ def write_text_atomic(text, path):
 
 
 def safe_output_name(name: str) -> str:
-    """A material name as a file name that cannot leave the output folder."""
-    from .core.names import MAX_NAME_BYTES
+    """A material name as a file name that cannot leave the output folder, distinct for
+    distinct names (``names.distinct_name``: ``a b`` and ``a_b`` get different files)."""
+    from .core.names import distinct_name
 
-    cleaned = "".join(c if c.isalnum() or c in "-_.+" else "_" for c in name).lstrip(".")
-    while len(cleaned.encode("utf-8")) > MAX_NAME_BYTES:  # room for ".json" under the 255-byte limit
-        cleaned = cleaned[:-1]
-    return cleaned or "material"
+    return distinct_name(name)
 
 
 def _plot_group(args):
@@ -206,16 +224,46 @@ def _plot_all(profiles, fits, out_dir, workers):
     if (workers or os.cpu_count() or 1) > 1:
         import multiprocessing as mp
 
-        with mp.get_context("fork").Pool(2) as pool:
+        with mp.get_context("fork").Pool(2, initializer=_ignore_sigint) as pool:
             pool.map(_plot_group, jobs)
     else:
         for j in jobs:
             _plot_group(j)
 
 
+def _publish(out_dir, inputs, docs, fits, summary, profiles, workers):
+    """Write every result into a staging folder inside ``out_dir``, then move each into place:
+    an error or Ctrl-C before the moves leaves nothing (the staging folder is removed)."""
+    from .cli import write_json_atomic
+    from .core.atomic import temp_folder
+    from .core.safeio import guard_output
+
+    finals = list(docs) + ["fits.json", "summary.csv"]
+    if profiles is not None:
+        from .plots import ORDER_PANELS
+
+        finals += [f"profiles_order{o}.png" for o in ORDER_PANELS] + ["fits.png", "energy_spline.png",
+                                                                        "correlation.png"]
+    for rel in finals:
+        guard_output(os.path.join(out_dir, rel), inputs)
+    os.makedirs(os.path.join(out_dir, "materials"), exist_ok=True)
+    with temp_folder(out_dir, ".tmp-brdfm-analyze-") as stage:
+        os.mkdir(os.path.join(stage, "materials"))
+        for rel, doc in docs.items():
+            write_json_atomic(doc, os.path.join(stage, rel))
+        write_json_atomic(fits, os.path.join(stage, "fits.json"))
+        write_text_atomic(summary, os.path.join(stage, "summary.csv"))
+        if profiles is not None:
+            _plot_all(profiles, fits, stage, workers)
+        for rel in sorted(os.listdir(stage)) + [os.path.join("materials", n) for n in
+                                                 sorted(os.listdir(os.path.join(stage, "materials")))]:
+            src = os.path.join(stage, rel)
+            if os.path.isfile(src) and not rel.startswith("."):
+                os.replace(src, guard_output(os.path.join(out_dir, rel), inputs))
+
+
 def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, floor="min"):
     """Profiles, fits, per-material JSON, summary CSV and plots for a set. Returns problems."""
-    from .cli import write_json_atomic
     from .core.fits import fit_set
     from .core.profiles import Profiles
 
@@ -227,7 +275,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, 
     qualified = _qualify(paths)
     t0 = time.perf_counter()
     results = run_parallel(paths, workers, progress, floor=floor)
-    profiles, per_fit, seconds = {}, {}, []
+    profiles, per_fit, seconds, docs = {}, {}, [], {}
     for path, pj, fit, err, sec in results:
         if err:
             problems.append(err)
@@ -236,20 +284,20 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, 
         profiles[name] = Profiles.from_json(pj, name=name)
         per_fit[name] = fit
         seconds.append(sec)
-        write_json_atomic({"material": name, "source": os.path.abspath(path), "profiles": pj, "fit": fit},
-                          os.path.join(out_dir, "materials", safe_output_name(name) + ".json"))
+        docs[os.path.join("materials", safe_output_name(name) + ".json")] = \
+            {"material": name, "source": os.path.abspath(path), "profiles": pj, "fit": fit}
     if not profiles:
         return problems
     fits = fit_set(profiles, materials=per_fit)
-    write_json_atomic(fits, os.path.join(out_dir, "fits.json"))
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=SUMMARY_FIELDS)
     writer.writeheader()
     for row in summary_rows(profiles, fits["materials"]):
         writer.writerow({k: ("" if v is None else (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()})
-    write_text_atomic(buf.getvalue(), os.path.join(out_dir, "summary.csv"))
-    if plots:
-        _plot_all(profiles, fits, out_dir, workers)
+    from .core.nbrdf import parse_source
+
+    inputs = [parse_source(p)[0] for p in paths]  # FILE:NAME reads FILE: that is the input to guard
+    _publish(out_dir, inputs, docs, fits, buf.getvalue(), profiles if plots else None, workers)
     log(f"analysed {len(profiles)} material(s) in {time.perf_counter() - t0:.1f} s "
         f"(median {np.median(seconds):.2f} s each on one core); results in {out_dir}")
     return problems

@@ -23,14 +23,36 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def _positive_int(text):
+def _positive_int(text, high=None):
     try:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1: {text}")
+    if high is not None and v > high:
+        raise argparse.ArgumentTypeError(f"must be at most {high}: {text}")
     return v
+
+
+def _bounded(high):
+    """An argparse type: a whole number in [1, high] (the bounds of core/limits.py)."""
+
+    def parse(text):
+        return _positive_int(text, high)
+
+    parse.__name__ = "bounded_int"
+    return parse
+
+
+def _guard(out, *inputs):
+    """Refuse a bad destination before any work (atomic_path checks again when writing)."""
+    from .core.safeio import guard_output
+
+    from .core.nbrdf import parse_source
+
+    # FILE:NAME (a material of a weights set) reads FILE: that is the input to protect.
+    return guard_output(out, [parse_source(p)[0] for p in inputs if p])
 
 
 def _elevation(text):
@@ -90,6 +112,11 @@ def cmd_profiles(args):
     from .core.nbrdf import read_table
     from .core.profiles import compute_profiles
 
+    _guard(args.out, args.file)
+    if args.plot:
+        _guard(args.plot, args.file, args.out)
+        if os.path.abspath(args.plot) == os.path.abspath(args.out):
+            raise InputError(f"{args.plot}: --plot and --out name the same file; choose two names")
     table = read_table(args.file)
     views = default_views(args.elevations, args.max_elevation)
     prof = compute_profiles(table, views, max_order=args.max_order, split=not args.no_split,
@@ -112,6 +139,7 @@ def cmd_fit(args):
     paths, problems = collect_inputs(args.files)
     if problems:
         raise InputError(problems[0])
+    _guard(args.out, *paths)
     names = input_names(paths)
     profiles = {n: load_profiles(p, name=n, floor=args.floor) for n, p in zip(names, paths)}
     result = fit_set(profiles)
@@ -133,6 +161,8 @@ def cmd_fit(args):
 def cmd_analyze(args):
     from .analyze import analyze
 
+    if os.path.lexists(args.out) and not os.path.isdir(args.out):
+        raise InputError(f"{args.out}: exists and is not a folder; --out names the output folder")
     problems = analyze(args.inputs, args.out, workers=args.jobs, progress=_progress("analysing", always=True),
                        plots=not args.no_plots, floor=args.floor)
     for p in problems:
@@ -165,9 +195,7 @@ def cmd_edit(args):
     from .core.merl import write_merl
     from .core.nbrdf import parse_source, read_table
 
-    source = parse_source(args.file)[0]
-    if os.path.exists(args.out) and os.path.exists(source) and os.path.samefile(args.out, source):
-        raise InputError(f"{args.out}: refusing to overwrite the input file; choose another output name")
+    _guard(args.out, args.file)
     table = read_table(args.file)
     colour = args.alpha or (1.0, 1.0, 1.0)
     targets = EditTargets(strength=args.alpha_scale if args.alpha_scale is not None else 1.0, colour=colour,
@@ -188,7 +216,7 @@ def cmd_edit(args):
     finally:
         if bar and shown[0] < shown[1]:
             sys.stderr.write("\n")  # an error cut the rounds short: end the bar's line before it
-    write_merl(res.table, args.out, source=source)
+    write_merl(res.table, args.out, source=parse_source(args.file)[0])
     mu = "—" if res.achieved_mu_slope is None else f"{res.achieved_mu_slope:+.4f}"
     s2 = "—" if res.achieved_sigma2 is None else f"{res.achieved_sigma2:.5f}"
     print(f"target   mean slope {res.target_mu_slope:+.4f}  variance {res.target_sigma2:.5f}")
@@ -201,9 +229,11 @@ def cmd_edit(args):
 
 
 def cmd_render(args):
-    from .render_command import run
+    from .render_command import run, run_in_child
 
-    return run(args, InputError)
+    if os.environ.get("BRDF_MOMENTS_RENDER_CHILD") == "1":
+        return run(args, InputError)
+    return run_in_child(args, InputError)
 
 
 def cmd_bench(args):
@@ -220,6 +250,8 @@ def _floor_option(parser):
 
 
 def build_parser():
+    from .core import limits as L
+
     p = _Parser(prog="python -m addon",
                                 description="BRDF Moments: moment profiles of measured (MERL) BRDFs.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -227,9 +259,11 @@ def build_parser():
     sp = sub.add_parser("profiles", help="moment profiles of one MERL file, as JSON")
     sp.add_argument("file", help="MERL .binary file; or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
     sp.add_argument("--out", required=True, help="output JSON path")
-    sp.add_argument("--elevations", type=_positive_int, default=90, help="number of view elevations (90)")
+    sp.add_argument("--elevations", type=_bounded(L.MAX_ELEVATIONS), default=90,
+                    help=f"number of view elevations (90, at most {L.MAX_ELEVATIONS})")
     sp.add_argument("--max-elevation", type=_elevation, default=89.0, help="largest elevation in degrees (89)")
-    sp.add_argument("--max-order", type=int, choices=range(5), default=4, help="highest moment order (4)")
+    sp.add_argument("--max-order", type=int, choices=range(L.MAX_ORDER + 1), default=L.MAX_ORDER,
+                    help=f"highest moment order ({L.MAX_ORDER})")
     sp.add_argument("--no-split", action="store_true", help="do not remove the diffuse floor kd")
     sp.add_argument("--interp", choices=("nearest", "trilinear"), default="nearest")
     sp.add_argument("--plot", help="also write a PNG of the profiles")
@@ -245,7 +279,8 @@ def build_parser():
     sa = sub.add_parser("analyze", help="profiles, fits, plots and a summary table for a set of materials")
     sa.add_argument("inputs", nargs="+", help="folders of .binary files, or files; a Neural-BRDF weights file or .npy folder means all its materials, FILE:NAME one")
     sa.add_argument("--out", required=True, help="output folder")
-    sa.add_argument("--jobs", type=_positive_int, default=None, help="worker processes (default: all cores)")
+    sa.add_argument("--jobs", type=_bounded(L.MAX_JOBS), default=None,
+                    help=f"worker processes (default: all cores, at most {L.MAX_JOBS})")
     sa.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     _floor_option(sa)
     sa.set_defaults(func=cmd_analyze)
@@ -271,10 +306,14 @@ def build_parser():
                     help="osl (Cycles with OSL), baked (numpy radiance, any engine) or auto")
     sr.add_argument("--mode", choices=("tabulated", "model"), default="tabulated",
                     help="OSL mode: the table itself, or its fitted moment model")
-    sr.add_argument("--size", type=_positive_int, default=256, help="image width and height in pixels (256)")
-    sr.add_argument("--samples", type=_positive_int, default=16, help="Cycles samples per pixel (16)")
-    sr.add_argument("--lobe-samples", type=_positive_int, default=16, help="OSL directions per shading point (16)")
-    sr.add_argument("--bake-samples", type=_positive_int, default=64, help="baked path directions per texel (64)")
+    sr.add_argument("--size", type=_bounded(L.MAX_RENDER_SIZE), default=256,
+                    help=f"image width and height in pixels (256, at most {L.MAX_RENDER_SIZE})")
+    sr.add_argument("--samples", type=_bounded(L.MAX_SAMPLES), default=16,
+                    help=f"Cycles samples per pixel (16, at most {L.MAX_SAMPLES})")
+    sr.add_argument("--lobe-samples", type=_bounded(L.MAX_LOBE_SAMPLES), default=16,
+                    help=f"OSL directions per shading point (16, at most {L.MAX_LOBE_SAMPLES})")
+    sr.add_argument("--bake-samples", type=_bounded(L.MAX_BAKE_SAMPLES), default=64,
+                    help=f"baked path directions per texel (64, at most {L.MAX_BAKE_SAMPLES})")
     sr.add_argument("--out", required=True, help="output .png (display-referred) or .exr (linear radiance)")
     sr.set_defaults(func=cmd_render)
 
@@ -287,11 +326,24 @@ def build_parser():
 
 def main(argv=None):
     from .core.merl import MerlError, display_path
+    from .core.safeio import run_scope
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        return args.func(args)
+        with run_scope():  # every file read is an input: no write of this run may replace it
+            return args.func(args)
+    except KeyboardInterrupt:
+        # Writers clean up on the way out (atomic_path, temp_folder): nothing is left behind.
+        if sys.stderr.isatty():
+            sys.stderr.write("\n")  # end a progress bar's line first
+        print(f"interrupted: {args.command} stopped; no partial output was left", file=sys.stderr)
+        return 130
+    except RecursionError:
+        print(f"error: {args.command}: input nested too deeply", file=sys.stderr)
+    except MemoryError:
+        print(f"error: {args.command}: not enough memory for this input", file=sys.stderr)
     except MerlError as exc:
         print(f"error: {exc}", file=sys.stderr)
     except InputError as exc:

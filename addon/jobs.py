@@ -61,11 +61,14 @@ class BackgroundJob:
         return {"FINISHED"}
 
     def execute(self, context):
+        from .core.safeio import run_scope
+
         work = self._prepare(context)
         if work is None:
             return {"CANCELLED"}
         try:
-            result = work(lambda done, total: None)
+            with run_scope():  # the files this work reads are never written over by it
+                result = work(lambda done, total: None)
         except USER_ERRORS as exc:
             self.report({"ERROR"}, _message(exc))
             return {"CANCELLED"}
@@ -91,8 +94,11 @@ class BackgroundJob:
             self._state["done"], self._state["total"] = done, max(total, 1)
 
         def run():
+            from .core.safeio import run_scope
+
             try:
-                self._state["result"] = work(report_progress)
+                with run_scope():
+                    self._state["result"] = work(report_progress)
             except Cancelled:
                 self._state["error"] = "cancelled"
             except BaseException as exc:  # noqa: BLE001 - reported on the main thread

@@ -10,6 +10,7 @@ import math
 import bpy
 import numpy as np
 
+from .core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE
 from .core.moments import CHANNELS, PROFILE_KEYS
 
 
@@ -22,10 +23,20 @@ def pack_profiles(prof) -> str:
 def unpack_profiles(text: str):
     from .core.profiles import Profiles
 
-    raw = np.frombuffer(base64.b64decode(text.encode("ascii")), dtype="<f4").astype(float)
-    n = int(raw[0])
+    # Stored in the .blend, so it may be damaged or edited: checked before anything uses it.
+    try:
+        raw = np.frombuffer(base64.b64decode(text.encode("ascii"), validate=True), dtype="<f4").astype(float)
+    except (ValueError, UnicodeEncodeError):
+        raise ValueError("the stored analysis is damaged (not base64 float data); analyse the material again") \
+            from None
+    n = int(raw[0]) if len(raw) and np.isfinite(raw[0]) and 1 <= raw[0] <= MAX_ELEVATIONS else -1
+    if n < 1 or len(raw) != 4 + n + len(CHANNELS) * len(PROFILE_KEYS) * n:
+        raise ValueError("the stored analysis is damaged (wrong length); analyse the material again")
     theta, kd = raw[1:1 + n], raw[1 + n:4 + n]
     arr = raw[4 + n:].reshape(len(CHANNELS), len(PROFILE_KEYS), n)
+    if not (np.isfinite(theta).all() and np.isfinite(kd).all()) or np.isinf(arr).any():
+        raise ValueError("the stored analysis is damaged (inf or NaN where numbers belong); analyse the material "
+                         "again")
     channels = {ch: {k: arr[i, j] for j, k in enumerate(PROFILE_KEYS)} for i, ch in enumerate(CHANNELS)}
     return Profiles(theta, kd, channels)
 
@@ -92,7 +103,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     preview_env: bpy.props.StringProperty(
         name="Environment", default="",
         description="a bundled HDRI name (empty: the default studio light) or an .exr/.hdr file of your own")
-    preview_size: bpy.props.IntProperty(name="Size", default=256, min=16, max=4096, subtype="PIXEL")
+    preview_size: bpy.props.IntProperty(name="Size", default=256, min=16, max=MAX_RENDER_SIZE, subtype="PIXEL")
     scale_to_one: bpy.props.BoolProperty(
         name="Scale albedo to 1", default=False,
         description="scale the edited material down so that it reflects no more light than it receives")
@@ -124,6 +135,10 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def fit(self) -> dict:
         """The stored fits as the engine's dict (enough for editing and plotting)."""
+        values = [self.fit_alpha_b, self.fit_theta0, self.fit_theta1, self.fit_alpha1, self.fit_m1,
+                  self.fit_mu_slope, self.fit_sigma2, *self.fit_channels, *self.kd]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"{self.id_data.name}: the stored fits hold inf or NaN; analyse the material again")
         return {"alpha_b": self.fit_alpha_b, "theta0": self.fit_theta0, "theta1": self.fit_theta1,
                 "alpha1": self.fit_alpha1, "m1": self.fit_m1, "mu_slope": self.fit_mu_slope,
                 "sigma2": self.fit_sigma2,

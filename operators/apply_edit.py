@@ -50,8 +50,13 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
                          + ([floor] if floor != "min" else []), sort_keys=True)
         out = os.path.join(edits_folder(), f"{safe_name(mat.name)}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.binary")
         self._mat_name = mat.name
+        # Edits still shown by a material are never evicted from the bounded cache.
+        in_use = [m.brdf_moments.edited_path for m in bpy.data.materials if m.brdf_moments.edited_path]
 
         def work(report_progress):
+            from ..addon.core import cachefs
+            from ..addon.core.limits import EDITS_CACHE_MAX_BYTES, EDITS_CACHE_MAX_ENTRIES
+
             table = read_table(spec)
             prof = compute_profiles(table, floor=floor)
             fit = fit_material(prof)
@@ -59,8 +64,10 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             res = edit(table, targets, prof, fit, progress=lambda d, t: report_progress(1 + 8 * d // t, 10))
             if scale:
                 res = scale_to_albedo(res)
-            os.makedirs(os.path.dirname(out), exist_ok=True)
+            cachefs.cache_folder(os.path.dirname(out))
             write_merl(res.table, out, source=source)
+            cachefs.write_seal(out)
+            cachefs.prune(os.path.dirname(out), EDITS_CACHE_MAX_ENTRIES, EDITS_CACHE_MAX_BYTES, keep=[out, *in_use])
             if res.profiles is None or scale:
                 res.profiles = compute_profiles(res.table, prof.theta_o, kd=prof.kd if prof.split else None,
                                                 split=prof.split)

@@ -5,6 +5,7 @@ import os
 
 import bpy
 
+from ..addon.core.limits import MAX_RENDER_SIZE, MAX_SAMPLES
 from .common import analysed_material
 
 SCENE = "BRDF Moments Preview"
@@ -23,25 +24,31 @@ class BRDFMOMENTS_OT_build_preview(bpy.types.Operator):
     mode: bpy.props.EnumProperty(name="OSL mode", default="MODEL", items=[
         ("MODEL", "Moment model", ""), ("TABULATED", "Tabulated", "")])
     env: bpy.props.StringProperty(name="Environment", description="bundled HDRI name or file (empty: default)")
-    size: bpy.props.IntProperty(name="Size", default=256, min=16, max=4096,
+    size: bpy.props.IntProperty(name="Size", default=256, min=16, max=MAX_RENDER_SIZE,
                                 description="sphere size in pixels; the render is two spheres wide")
-    samples: bpy.props.IntProperty(name="Samples", default=16, min=1, max=4096)
+    samples: bpy.props.IntProperty(name="Samples", default=16, min=1, max=MAX_SAMPLES)
     render_to: bpy.props.StringProperty(name="Render to", subtype="FILE_PATH",
                                         description="also render a still here (.png display-referred, .exr linear)")
     use_panel_settings: bpy.props.BoolProperty(default=False, options={"HIDDEN"})
 
     def execute(self, context):
+        from ..addon.core.safeio import run_scope
+
         try:
-            info = self._build(context)
-        except (OSError, ValueError, RuntimeError) as exc:
+            with run_scope():  # the map and tables read here are never written over
+                info = self._build(context)
+        except (OSError, ValueError, RuntimeError, ArithmeticError, MemoryError) as exc:
             self.report({"ERROR"}, str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
             return {"CANCELLED"}
         self.report({"INFO"}, info)
         return {"FINISHED"}
 
     def _build(self, context):
+        from ..addon.core.cachefs import check_sealed
+        from ..addon.core.limits import check_int
         from ..addon.core.merl import read_merl
-        from ..addon.core.nbrdf import read_table, source_exists
+        from ..addon.core.nbrdf import read_table, source_exists, source_file
+        from ..addon.core.safeio import guard_output
         from ..addon.preview import build_preview, render_still
 
         mat = analysed_material(context, self.material)
@@ -50,6 +57,12 @@ class BRDFMOMENTS_OT_build_preview(bpy.types.Operator):
             self.path, self.mode, self.env, self.size = (state.preview_path, state.preview_mode, state.preview_env,
                                                          state.preview_size)
         path, mode = self.path.lower(), self.mode.lower()
+        size = check_int(self.size, "Size", 16, MAX_RENDER_SIZE)  # a script may set any int
+        samples = check_int(self.samples, "Samples", 1, MAX_SAMPLES)
+        if self.render_to:
+            env_file = bpy.path.abspath(self.env) if self.env and os.path.splitext(self.env)[1] else None
+            guard_output(bpy.path.abspath(self.render_to), [source_file(bpy.path.abspath(state.source_path)), state.edited_path,
+                                                            env_file])
         source = bpy.path.abspath(state.source_path)
         live = mode == "model" and path in ("osl", "auto")
         if source_exists(source):
@@ -61,13 +74,14 @@ class BRDFMOMENTS_OT_build_preview(bpy.types.Operator):
         # The edited sphere: the re-synthesized table if Apply made one, else the sliders'
         # moment model (what the OSL model path renders live anyway).
         if state.edited_path and os.path.isfile(state.edited_path) and not live:
+            check_sealed(state.edited_path, "edited table (Apply's cache)")
             edited = read_merl(state.edited_path)
         else:
             edited = state.model_params(edited=True)
         scene = bpy.data.scenes.get(SCENE) or bpy.data.scenes.new(SCENE)
         info = build_preview(scene, original, edited, path=path, mode=mode, env=self.env or None,
-                             size=(2 * self.size, self.size),
-                             samples=self.samples,
+                             size=(2 * size, size),
+                             samples=samples,
                              profiles=[state.profiles() if original is not None and hasattr(original, "rho") else None,
                                        state.edited_profiles() if hasattr(edited, "rho") else None])
         state.preview_material = info.materials[-1]
@@ -76,6 +90,7 @@ class BRDFMOMENTS_OT_build_preview(bpy.types.Operator):
         text = f"Preview ({info.path}{', ' + info.mode if info.path == 'osl' else ''}) in scene '{SCENE}'"
         if self.render_to:
             out = bpy.path.abspath(self.render_to)
+            guard_output(out, [info.environment])  # the map, the tables: inputs of this run
             render_still(scene, out)
             text += f", rendered to {out}"
         return text + "".join(f"; {n}" for n in info.notes)

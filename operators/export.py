@@ -66,17 +66,21 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
+        from ..addon.core.safeio import run_scope
+
         try:
-            written = self._export(context)
-        except (OSError, ValueError) as exc:
+            with run_scope():
+                written = self._export(context)
+        except (OSError, ValueError, ArithmeticError) as exc:
             self.report({"ERROR"}, str(exc).splitlines()[0])
             return {"CANCELLED"}
         self.report({"INFO"}, "Exported " + ", ".join(written))
         return {"FINISHED"}
 
     def _export(self, context):
+        from ..addon.core.cachefs import check_sealed
         from ..addon.core.merl import read_merl, write_merl
-        from ..addon.core.names import safe_export_path
+        from ..addon.core.names import distinct_name, safe_export_path
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
@@ -84,12 +88,14 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
         if not folder or not os.path.isdir(folder):
             raise ValueError(f"{folder or 'no folder'}: choose an existing folder to export into")
         written = []
+        base = distinct_name(mat.name)  # materials 'a/b' and 'a_b' never share a file
         if self.what == "TABLE":
             if not state.edited_path or not os.path.isfile(state.edited_path):
                 raise ValueError(f"{mat.name}: nothing to export yet; press Apply to re-synthesize the table")
-            dest = safe_export_path(folder, f"{mat.name}_edited", ".binary")
             from ..addon.core.nbrdf import source_file
 
+            dest = safe_export_path(folder, f"{base}_edited", ".binary")
+            check_sealed(state.edited_path, "edited table (Apply's cache)")
             write_merl(read_merl(state.edited_path), dest, source=source_file(bpy.path.abspath(state.source_path)))
             written.append(dest)
         elif self.what == "PROFILES":
@@ -97,14 +103,14 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
             edited = state.edited_profiles()
             if edited is not None:
                 data["edited"] = edited.to_json()
-            dest = safe_export_path(folder, f"{mat.name}_profiles", ".json")
+            dest = safe_export_path(folder, f"{base}_profiles", ".json")
             _write_json(data, dest)
             written.append(dest)
         else:
             for edited in (False, True):
                 if edited and state.edited_profiles() is None:
                     continue
-                dest = safe_export_path(folder, f"{mat.name}_{'edited' if edited else 'measured'}_profiles", ".png")
+                dest = safe_export_path(folder, f"{base}_{'edited' if edited else 'measured'}_profiles", ".png")
                 _write_png(mat, dest, edited)
                 written.append(dest)
         return written

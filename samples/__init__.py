@@ -123,8 +123,10 @@ def sample_path(name: str, force: bool = False) -> str:
         raise KeyError(f"unknown sample {name!r}; known: {', '.join(sorted(CATALOG))}, "
                        f"and measured SET/NAME (python -m samples --list)")
     folder = cache_dir()
+    if os.path.lexists(folder) and not os.path.isdir(folder):
+        raise ValueError(f"{folder}: BRDF_MOMENTS_SAMPLES must name a folder, and this is not one")
     os.makedirs(folder, exist_ok=True)
     path = os.path.join(folder, f"{name}.binary")
-    if force or not os.path.exists(path):
+    if force or not os.path.isfile(path):
         write_merl(tabulate(CATALOG[name]), path)
     return path

@@ -30,5 +30,12 @@ unknown = [n for n in names if n not in CATALOG and n not in measured]
 if unknown:
     print(f"error: unknown sample(s) {', '.join(unknown)}; try --list", file=sys.stderr)
     sys.exit(2)
-for name in names:
-    print(sample_path(name, force=args.force))
+try:
+    for name in names:
+        print(sample_path(name, force=args.force))
+except (OSError, ValueError) as exc:  # a bad cache folder: one line, no traceback
+    print(f"error: {exc}", file=sys.stderr)
+    sys.exit(2)
+except KeyboardInterrupt:
+    print("interrupted: nothing left half-written", file=sys.stderr)
+    sys.exit(130)

@@ -93,7 +93,10 @@ def main():
     if not has_operator(bpy, "apply_edit"):
         raise SystemExit("demo: the BRDF Moments add-on is not enabled")
 
-    merl = samples.sample_path(args.sample)
+    try:
+        merl = samples.sample_path(args.sample)
+    except (OSError, ValueError, KeyError) as exc:
+        raise SystemExit(f"demo: {exc}") from None
     _say("sample", f"{args.sample} tabulated into {merl}")
     mat = bpy.data.materials.new(args.sample)
     mat.use_fake_user = True
@@ -138,7 +141,9 @@ def main():
         "files": sorted(os.listdir(args.out)), "renders": renders,
         "seconds": round(time.perf_counter() - t_start, 1),
     }
-    with open(os.path.join(args.out, "demo.json"), "w") as fh:
+    from addon.core.atomic import atomic_path  # guarded and atomic, like every other writer
+
+    with atomic_path(os.path.join(args.out, "demo.json"), ".json") as tmp, open(tmp, "w") as fh:
         json.dump(summary, fh, indent=1, allow_nan=False)
     _say("done", f"{summary['seconds']} s; summary in {os.path.join(args.out, 'demo.json')}")
 

@@ -6,6 +6,7 @@ import hashlib
 import json
 import math
 import os
+import struct
 import subprocess
 import sys
 from collections import defaultdict
@@ -134,3 +135,24 @@ def stored_of(raw: bytes) -> np.ndarray:
 
 def merl_bytes(stored: np.ndarray, header=(90, 90, 180)) -> bytes:
     return np.asarray(header, dtype="<i4").tobytes() + np.ascontiguousarray(stored, dtype="<f8").tobytes()
+
+
+def exr_bytes(width, height, compression=3, body=b""):
+    """A scanline OpenEXR header (RGB float) claiming ``width`` x ``height``, its chunk table
+    pointing into ``body``: enough for a decoder to start allocating what the header says."""
+    def attr(name, kind, value):
+        return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+    chans = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1) for c in "BGR") + b"\0"
+    box = struct.pack("<4i", 0, 0, width - 1, height - 1)
+    head = (b"\x76\x2f\x31\x01" + struct.pack("<I", 2) + attr("channels", "chlist", chans)
+            + attr("compression", "compression", bytes([compression])) + attr("dataWindow", "box2i", box)
+            + attr("displayWindow", "box2i", box) + attr("lineOrder", "lineOrder", b"\0")
+            + attr("pixelAspectRatio", "float", struct.pack("<f", 1.0))
+            + attr("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0))
+            + attr("screenWindowWidth", "float", struct.pack("<f", 1.0)) + b"\0")
+    chunks = -(-height // {0: 1, 3: 16}[compression])
+    start = len(head) + 8 * chunks
+    body = body or bytes(max(16, chunks * 16))
+    offsets = [start + (i * 16) % max(len(body) - 16, 1) for i in range(chunks)]
+    return head + struct.pack(f"<{chunks}Q", *offsets) + body

@@ -44,7 +44,7 @@ def test_a_set_without_a_material_is_a_one_line_error_listing_names(tmp_path, cm
     assert "Traceback" not in res.stderr and not os.listdir(tmp_path)
 
 
-@pytest.mark.parametrize("content,fault", [(b"", "not a readable .npz"), (b"PK\x03\x04junk", "not a readable .npz")])
+@pytest.mark.parametrize("content,fault", [(b"", "not a valid Neural-BRDF weights file"), (b"PK\x03\x04junk", "not a valid Neural-BRDF weights file")])
 def test_bad_weights_files_exit_2_naming_file_and_fault(tmp_path, content, fault):
     bad = tmp_path / "bad.npz"
     bad.write_bytes(content)

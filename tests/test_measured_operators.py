@@ -66,7 +66,7 @@ def test_bad_weights_are_an_error_report(material, tmp_path):
     bpy, mat = material
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a zip")
-    with pytest.raises(RuntimeError, match="bad.npz: not a readable .npz"):
+    with pytest.raises(RuntimeError, match="bad.npz: not a valid Neural-BRDF weights file"):
         bpy.ops.brdf_moments.load_merl(filepath=str(bad), material="Measured")
     assert not mat.brdf_moments.analysed
 

@@ -166,8 +166,8 @@ def test_bad_sources_raise_one_line_errors_naming_the_file(tmp_path):
     good = {k: getattr(net, k) for k in nbrdf.LAYER_KEYS}
     nan = dict(good, W2=np.where(np.eye(21, dtype=bool), np.nan, net.W2))
     cases = [
-        (_bad(tmp_path, "empty.npz"), "not a readable .npz"),
-        (_bad(tmp_path, "text.npz", b"hello"), "not a readable .npz"),
+        (_bad(tmp_path, "empty.npz"), "not a valid Neural-BRDF weights file"),
+        (_bad(tmp_path, "text.npz", b"hello"), "not a valid Neural-BRDF weights file"),
         (_bad(tmp_path, "other.npz", a=np.ones(3)), "no network weights"),
         (_bad(tmp_path, "shape.npz", **dict(good, W1=np.ones((5, 21), np.float32))), "not a 6-input"),
         (_bad(tmp_path, "nan.npz", **nan), "non-finite"),

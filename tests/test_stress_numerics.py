@@ -234,26 +234,24 @@ def test_operator_streamed_into_the_cache_equals_the_in_memory_build(tmp_path):
     _MEMO.clear()
 
 
-def test_building_an_operator_sweeps_older_versions_and_killed_builds(tmp_path):
-    # Each operator folder is a few hundred MB: a code update or a killed build must not leave
-    # one behind for ever. A live build's folder and the current version's operators stay.
-    import subprocess
-    import sys
+def test_the_operator_cache_keeps_the_most_recently_used_within_its_bound(tmp_path):
+    # Each operator folder is hundreds of MB: the cache keeps at most OPERATOR_CACHE_MAX_ENTRIES
+    # of the current version, least recently used out first, and only folders it marked.
+    # (Foreign and unmarked folders are never touched: tests/test_stress_lost.py.)
+    from addon.core.atomic import MARKER
+    from addon.core.integrate import _MEMO, _OPERATOR_PREFIX, _SEAL
+    from addon.core.limits import OPERATOR_CACHE_MAX_ENTRIES
 
-    from addon.core.integrate import _MEMO, OPERATOR_VERSION
-
-    dead = subprocess.Popen([sys.executable, "-c", "pass"])
-    dead.wait()
-    kept = [f"operator-v{OPERATOR_VERSION}-0123456789abcdef0123", f".tmp-{os.getpid()}-op-live"]
-    gone = ["operator-0123456789abcdef0123", f"operator-v{OPERATOR_VERSION - 1}-0123456789abcdef0123",
-            f".tmp-{dead.pid}-op-killed"]
-    for name in kept + gone:
+    names = [f"{_OPERATOR_PREFIX}{i:020d}" for i in range(OPERATOR_CACHE_MAX_ENTRIES + 2)]
+    for age, name in enumerate(names):
         (tmp_path / name).mkdir()
-        (tmp_path / name / "weights.npy").write_bytes(b"x")
+        (tmp_path / name / MARKER).write_text("x")
+        (tmp_path / name / _SEAL).write_text("{}")
+        os.utime(tmp_path / name / _SEAL, (1e9 + age, 1e9 + age))
     _MEMO.clear()
     get_operator(np.radians([10.0]), cache_dir=str(tmp_path))
-    left = set(os.listdir(tmp_path))
-    assert set(kept) <= left
-    assert not set(gone) & left
-    assert len([n for n in left if n.startswith(f"operator-v{OPERATOR_VERSION}-")]) == 2  # + the new one
+    left = sorted(n for n in os.listdir(tmp_path) if n.startswith(_OPERATOR_PREFIX))
+    assert len(left) == OPERATOR_CACHE_MAX_ENTRIES
+    # the new one (most recent) and the newest of the others stay
+    assert set(names[-(OPERATOR_CACHE_MAX_ENTRIES - 1):]) <= set(left)
     _MEMO.clear()

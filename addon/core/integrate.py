@@ -12,10 +12,10 @@ one small matrix product per view.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,17 +30,19 @@ MAX_ORDER = 4
 
 
 def default_cache_dir() -> str:
-    env = os.environ.get("BRDF_MOMENTS_CACHE")
-    if env:
-        return env
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "brdf_moments")
+    from .safeio import cache_root
+
+    return cache_root()
 
 
 def default_views(count: int = 90, max_deg: float = 89.0) -> np.ndarray:
     """theta_o samples in radians: 0 .. max_deg inclusive, ``count`` of them."""
+    from .limits import MAX_ELEVATIONS
+
     if count < 1:
         raise ValueError("need at least one elevation")
+    if count > MAX_ELEVATIONS:
+        raise ValueError(f"at most {MAX_ELEVATIONS} elevations (asked for {count})")
     if not (0.0 <= max_deg < 90.0):
         raise ValueError(f"max elevation must be in [0, 90) degrees, got {max_deg}")
     if count == 1:
@@ -145,7 +147,9 @@ def _operator_key(theta_o, params):
     return h.hexdigest()[:20]
 
 
-_OPERATOR_PREFIX = f"operator-v{OPERATOR_VERSION}-"
+# "s": sealed folders (marker and checksums), so older unsealed ones are never taken for ours.
+_OPERATOR_PREFIX = f"operator-v{OPERATOR_VERSION}s-"
+_SEAL = "seal.json"
 
 _MEMO: dict = {}
 _SMALL: dict = {}  # single-view operators (the 45 deg diffuse slice)
@@ -153,7 +157,8 @@ _SMALL: dict = {}  # single-view operators (the 45 deg diffuse slice)
 
 def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, progress=None,
                  memo=True) -> SliceOperator:
-    """The operator for these views, from memory, the disk cache, or built (and cached)."""
+    """The operator for these views, from memory, the disk cache (verified against its
+    checksums once per process), or built (and cached)."""
     theta_o = np.asarray(theta_o, dtype=float)
     key = _operator_key(theta_o, params)
     if key in _MEMO:
@@ -163,8 +168,10 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
     folder = os.path.join(cache_dir or default_cache_dir(), f"{_OPERATOR_PREFIX}{key}")
     op = None
     if os.path.isdir(folder):
-        op = _load_operator(folder)
-    if op is None:
+        op = _load_operator(folder, theta_o)
+        if op is None and not _discard(folder):
+            folder = None  # damaged and not provably ours: leave it, build in memory
+    if op is None and folder is not None:
         # Stream each view's part into the cache as it is built and map the result back:
         # holding all views in memory (let alone concatenating them) would dominate the peak.
         op = _build_into_cache(theta_o, params, folder, progress)
@@ -183,51 +190,127 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
 _PART_LAYOUT = {"cells": (np.int32, ()), "weights": (np.float32, (n_monomials(MAX_ORDER),)),
                 "albedo": (np.float32, ()), "centroid": (np.float32, (2,)),
                 "local": (np.float32, (n_monomials(MAX_ORDER) - 1,))}
+_FILES = ("theta_o.npy", "offsets.npy") + tuple(f"{k}.npy" for k in _PARTS)
 
 
-def _load_operator(folder):
+def file_crc(path, block=1 << 22) -> tuple:
+    """(size, crc32) of a file, read in blocks (about 2.8 GB/s here: 0.14 s for 370 MB)."""
+    import zlib
+
+    crc, size = 0, 0
+    with open(path, "rb") as fh:
+        while block_ := fh.read(block):
+            crc = zlib.crc32(block_, crc)
+            size += len(block_)
+    return size, crc
+
+
+def _load_operator(folder, theta_o=None):
+    """The operator in ``folder`` if its seal holds (every file's size and CRC-32, the views);
+    None for anything damaged, missing or foreign: a damaged cache is rebuilt, never trusted."""
+    import json
+    import stat
+
+    from .atomic import is_marked
+
     try:
+        if not is_marked(folder):
+            return None
+        with open(os.path.join(folder, _SEAL)) as fh:
+            seal = json.load(fh)
+        for name in _FILES:
+            path = os.path.join(folder, name)
+            if not stat.S_ISREG(os.stat(path).st_mode) or list(file_crc(path)) != list(seal["files"][name]):
+                return None
         # np.load's default allow_pickle=False: a cache file can hold numbers, never objects.
-        theta_o = np.load(os.path.join(folder, "theta_o.npy"))
+        views = np.load(os.path.join(folder, "theta_o.npy"))
         offsets = np.load(os.path.join(folder, "offsets.npy"))
         parts = {k: np.load(os.path.join(folder, f"{k}.npy"), mmap_mode="r") for k in _PARTS}
-    except (OSError, ValueError, EOFError):
-        return None  # a damaged cache is rebuilt, never trusted
-    n = int(offsets[-1]) if offsets.ndim == 1 and len(offsets) else -1
+    except (OSError, ValueError, EOFError, KeyError, TypeError):
+        return None
+    if theta_o is not None and (views.shape != np.shape(theta_o) or not np.array_equal(views, theta_o)):
+        return None
+    n = int(offsets[-1]) if offsets.ndim == 1 and len(offsets) == len(views) + 1 else -1
+    if n < 0 or offsets[0] != 0 or (np.diff(offsets) < 0).any():
+        return None
     for k, (dtype, tail) in _PART_LAYOUT.items():
         if parts[k].shape != (n,) + tail or parts[k].dtype != dtype:
             return None
-    return SliceOperator(theta_o, offsets, **parts)
+    cells = parts["cells"]
+    if n and (int(cells.min()) < 0 or int(cells.max()) >= N_CELLS):
+        return None
+    with contextlib.suppress(OSError):
+        os.utime(os.path.join(folder, _SEAL))  # recently used: evicted last
+    return SliceOperator(views, offsets, **parts)
 
 
-def sweep_operator_cache(parent) -> list:
-    """Remove what no current build will read: operators of other code versions and the
-    half-built folders of builds that were killed. Each is a few hundred MB. Returns the names."""
-    from .atomic import _TEMP, _alive
+def _discard(folder) -> bool:
+    """Remove an operator folder, only if it carries the product's marker; True if removed."""
+    from .atomic import is_marked
 
-    removed = []
+    if not is_marked(folder):
+        return False
+    trash = f"{folder}.discard-{os.getpid()}"
+    try:
+        os.replace(folder, trash)
+    except OSError:
+        return False
+    shutil.rmtree(trash, ignore_errors=True)
+    return True
+
+
+def sweep_operator_cache(parent, keep=()) -> list:
+    """Remove the operator folders no current build will read (other code versions), and the
+    least recently used current ones beyond ``limits.OPERATOR_CACHE_MAX_*``. Only folders
+    carrying the product's marker are touched. Returns the names removed."""
+    from .atomic import is_marked
+    from .limits import OPERATOR_CACHE_MAX_BYTES, OPERATOR_CACHE_MAX_ENTRIES
+
+    removed, current = [], []
     try:
         names = os.listdir(parent)
     except OSError:
         return removed
     for name in names:
-        m = _TEMP.match(name)
-        stale = (name.startswith("operator-") and not name.startswith(_OPERATOR_PREFIX)) or \
-                (m is not None and "-op-" in name and not _alive(int(m.group(1))))
-        if stale and os.path.isdir(os.path.join(parent, name)):
-            shutil.rmtree(os.path.join(parent, name), ignore_errors=True)
-            removed.append(name)
+        path = os.path.join(parent, name)
+        if not name.startswith("operator-") or os.path.islink(path) or not os.path.isdir(path) \
+                or not is_marked(path):
+            continue
+        if not name.startswith(_OPERATOR_PREFIX) and name not in keep:
+            if _discard(path):
+                removed.append(name)
+            continue
+        try:
+            used = os.stat(os.path.join(path, _SEAL)).st_mtime
+            size = sum(os.path.getsize(os.path.join(path, f)) for f in _FILES)
+        except OSError:
+            used, size = 0.0, 0
+        current.append((float("inf") if name in keep else used, name, size))
+    current.sort(reverse=True)
+    total, count = 0, 0
+    for used, name, size in current:
+        total += size
+        count += 1
+        if (count > OPERATOR_CACHE_MAX_ENTRIES or total > OPERATOR_CACHE_MAX_BYTES) and name not in keep:
+            if _discard(os.path.join(parent, name)):
+                removed.append(name)
     return removed
 
 
 def _build_into_cache(theta_o, params, folder, progress):
     """Build view by view into a temporary folder next to ``folder``, then rename it into
-    place; returns the memory-mapped operator, or None if the cache cannot be written."""
+    place; returns the memory-mapped operator, or None if the cache cannot be written. An
+    interrupt or an error removes the temporary folder."""
+    import json
+
+    from .atomic import own_folder, sweep_pending, temp_folder
+
     parent = os.path.dirname(folder)
     try:
-        os.makedirs(parent, exist_ok=True)
-        sweep_operator_cache(parent)
-        tmp = tempfile.mkdtemp(prefix=f".tmp-{os.getpid()}-op-", dir=parent)
+        own_folder(parent)
+        sweep_pending()
+        build = temp_folder(parent, f".tmp-brdfm-op-{os.getpid()}-")
+        tmp = build.__enter__()
     except OSError:
         return None  # an unwritable cache only costs time
     try:
@@ -255,14 +338,19 @@ def _build_into_cache(theta_o, params, folder, progress):
                                                            "shape": (int(offsets[-1]),) + tail})
                 shutil.copyfileobj(fh, out, 1 << 24)
             os.unlink(src)
-        if os.path.isdir(folder):  # another process won the race; keep theirs
-            shutil.rmtree(tmp, ignore_errors=True)
-        else:
+        with open(os.path.join(tmp, _SEAL), "w") as fh:
+            json.dump({"version": OPERATOR_VERSION, "files": {f: file_crc(os.path.join(tmp, f)) for f in _FILES}}, fh)
+        if not os.path.isdir(folder):  # else another process won the race; keep theirs
             os.replace(tmp, folder)
     except OSError:
-        shutil.rmtree(tmp, ignore_errors=True)
+        build.__exit__(None, None, None)
         return None
-    return _load_operator(folder)
+    except BaseException:
+        build.__exit__(None, None, None)  # Ctrl-C, Esc: no half-built folder is left
+        raise
+    build.__exit__(None, None, None)
+    sweep_operator_cache(parent, keep=(os.path.basename(folder),))
+    return _load_operator(folder, theta_o)
 
 
 def table_sums(op: SliceOperator, values: np.ndarray, max_order: int = MAX_ORDER) -> np.ndarray:

@@ -14,6 +14,7 @@ import numpy as np
 
 from .atomic import atomic_path
 from .geometry import HALF_PI, half_diff_from_directions
+from .safeio import UnsafePath, display_path, guard_output, open_input
 
 RES_TH, RES_TD, RES_PD = 90, 90, 180
 N_CELLS = RES_TH * RES_TD * RES_PD
@@ -26,21 +27,8 @@ FILE_BYTES = HEADER_BYTES + 3 * N_CELLS * 8
 MAX_REFLECTANCE = 1e30
 
 
-def display_path(path) -> str:
-    """A path as given, but on one line: control characters (a newline in a file name) escaped."""
-    text = os.fsdecode(path) if path is not None else "<memory>"
-    if not text:
-        return "<no file name>"
-    return "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in text)
-
-
-class MerlError(ValueError):
+class MerlError(UnsafePath):
     """A MERL file that cannot be used; the message names the file and the fault."""
-
-    def __init__(self, path, fault):
-        self.path = os.fspath(path) if path is not None else "<memory>"
-        self.fault = fault
-        super().__init__(f"{display_path(path)}: {fault}")
 
 
 @dataclass
@@ -79,8 +67,12 @@ def read_merl(path) -> MerlTable:
     """Read and validate a MERL file. Raises MerlError naming the file and the fault."""
     path = os.fspath(path)
     try:
-        size = os.path.getsize(path)
-        with open(path, "rb") as fh:
+        fh = open_input(path, 1 << 62, "file")  # the exact size is checked below, after the header
+    except UnsafePath as exc:
+        raise MerlError(path, exc.fault) from None
+    try:
+        size = os.fstat(fh.fileno()).st_size
+        with fh:
             header = fh.read(HEADER_BYTES)
             if size < HEADER_BYTES:
                 raise MerlError(path, f"file too short for a MERL header ({size} bytes, need {FILE_BYTES})")
@@ -128,15 +120,16 @@ def write_merl(table: MerlTable, path, *, source=None) -> None:
     never clobber its input.
     """
     path = os.path.abspath(os.fspath(path))
-    for src in (source, table.path):
-        if src and os.path.exists(src) and os.path.exists(path) and os.path.samefile(src, path):
-            raise MerlError(path, "refusing to overwrite the input file; choose another output name")
+    try:
+        guard_output(path, (source, table.path))
+    except UnsafePath as exc:
+        raise MerlError(path, exc.fault) from None
     if not (np.isfinite(table.rho).all()):
         raise MerlError(path, "refusing to write non-finite values")
     if table.rho.max(initial=0.0) > MAX_REFLECTANCE:
         raise MerlError(path, f"refusing to write values above {MAX_REFLECTANCE:g} (read_merl would refuse them)")
     stored = np.where(table.valid, table.rho / CHANNEL_SCALES[:, None], -1.0)
-    with atomic_path(path, ".binary") as tmp, open(tmp, "wb") as fh:
+    with atomic_path(path, ".binary", inputs=(source, table.path)) as tmp, open(tmp, "wb") as fh:
         fh.write(np.asarray(SHAPE, dtype="<i4").tobytes())
         fh.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())
         fh.flush()

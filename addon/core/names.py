@@ -41,3 +41,30 @@ def safe_export_path(folder, name, suffix: str = ".binary") -> str:
     if os.path.dirname(path) != root:
         raise ValueError(f"{base}: the export would leave the folder {root} (a link inside it points elsewhere)")
     return path
+
+
+def distinct_name(name: str, default: str = "material") -> str:
+    """``safe_name(name)``, with a short hash of ``name`` appended when cleaning changed it.
+
+    Distinct names then never share a file name: ``a b`` and ``a_b`` (or ``a/b`` and ``a_b``)
+    clean to the same text, but only the one already clean keeps it as it is."""
+    import hashlib
+
+    base = safe_name(name, default)
+    if base == name:
+        return base
+    tag = hashlib.sha1(str(name).encode("utf-8", "surrogatepass")).hexdigest()[:8]
+    while len(f"{base}-{tag}".encode("utf-8")) > MAX_NAME_BYTES:
+        base = base[:-1]
+    return f"{base}-{tag}"
+
+
+def collisions(names) -> list:
+    """Pairs of distinct names whose file names coincide on a case-insensitive file system."""
+    seen, out = {}, []
+    for n in names:
+        k = distinct_name(n).casefold()
+        if k in seen and seen[k] != n:
+            out.append((seen[k], n))
+        seen.setdefault(k, n)
+    return out

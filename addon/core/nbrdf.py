@@ -108,22 +108,37 @@ def _network(path, name, arrays: dict) -> Network:
 # --- reading -----------------------------------------------------------------------------
 
 def _npz_groups(path):
+    from .limits import MAX_NBRDF_BYTES, MAX_NBRDF_MEMBERS
+    from .safeio import UnsafePath, load_npz
+
+    # The one input opener: a regular file within the size bound, its zip directory checked
+    # before anything is inflated, numbers only (no pickles).
     try:
-        z = np.load(path, allow_pickle=False)
-    except Exception as exc:
-        raise WeightsError(path, f"not a readable .npz ({exc.__class__.__name__}: {_why(exc)})") from None
-    if not hasattr(z, "files"):
-        raise WeightsError(path, "a single .npy array, not an .npz of network weights")
+        arrays = load_npz(path, MAX_NBRDF_BYTES, "Neural-BRDF weights file", max_members=MAX_NBRDF_MEMBERS)
+    except UnsafePath as exc:
+        raise WeightsError(path, exc.fault) from None
     groups: dict[str, dict] = {}
-    with z:
-        for key in z.files:
-            prefix, _, leaf = key.rpartition("/")
-            if leaf in LAYER_KEYS:
-                try:
-                    groups.setdefault(prefix, {})[leaf] = z[key]
-                except Exception as exc:
-                    raise WeightsError(path, f"cannot read array {key!r} ({_why(exc)})") from None
+    for key, arr in arrays.items():
+        prefix, _, leaf = key.rpartition("/")
+        if leaf in LAYER_KEYS:
+            groups.setdefault(prefix, {})[leaf] = arr
     return groups
+
+
+def _read_npy(path):
+    import io
+
+    from .limits import MAX_NBRDF_BYTES
+    from .safeio import UnsafePath, read_input
+
+    try:
+        data = read_input(path, MAX_NBRDF_BYTES, "Neural-BRDF weights file")
+    except UnsafePath as exc:
+        raise WeightsError(path, exc.fault) from None
+    try:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except Exception as exc:  # noqa: BLE001 - numpy raises many kinds for bad bytes
+        raise WeightsError(path, f"not a readable .npy ({_why(exc)})") from None
 
 
 def _npy_groups(folder):
@@ -140,10 +155,7 @@ def _npy_groups(folder):
         for leaf, key in inverse.items():
             if stem == leaf or stem.endswith("_" + leaf):
                 prefix = stem[: -len(leaf)].rstrip("_")
-                try:
-                    arr = np.load(os.path.join(folder, fname), allow_pickle=False)
-                except Exception as exc:
-                    raise WeightsError(os.path.join(folder, fname), f"not a readable .npy ({_why(exc)})") from None
+                arr = _read_npy(os.path.join(folder, fname))
                 groups.setdefault(prefix, {})[key] = arr
                 break
     return groups
@@ -155,6 +167,13 @@ def _h5_groups(path):
     except ImportError:
         raise WeightsError(path, "reading Keras .h5 files needs the h5py package (not installed); "
                                  "convert with the Neural-BRDF project's h5_to_npy.py, or use an .npz") from None
+    from .limits import MAX_NBRDF_BYTES
+    from .safeio import UnsafePath, open_input
+
+    try:  # regular file within the bound (a FIFO would hang h5py); h5py then reads it itself
+        open_input(path, MAX_NBRDF_BYTES, "Keras weights file").close()
+    except UnsafePath as exc:
+        raise WeightsError(path, exc.fault) from None
     datasets = {}
     try:
         with h5py.File(path, "r") as f:

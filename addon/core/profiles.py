@@ -9,7 +9,7 @@ import numpy as np
 
 from .integrate import MAX_ORDER, centred_view_sums, default_views, get_operator, table_sums
 from .merl import MerlTable
-from .moments import CHANNELS, KEYS_BY_ORDER, monomials, profiles_from_sums, shift_amplification
+from .moments import CHANNELS, KEYS_BY_ORDER, PROFILE_KEYS, monomials, profiles_from_sums, shift_amplification
 from .quadrature import RuleParams, slice_rule
 
 DIFFUSE_VIEW = math.radians(45.0)
@@ -49,12 +49,45 @@ class Profiles:
 
     @classmethod
     def from_json(cls, data: dict, name: str = "") -> "Profiles":
-        def arr(v):
-            return np.array([np.nan if x is None else float(x) for x in v])
+        """Profiles from the JSON ``to_json`` writes; ValueError naming the first fault (wrong
+        types, lists of different lengths, values out of range) for anything else."""
+        from .limits import MAX_JSON_LIST
 
-        channels = {ch: {k: arr(v) for k, v in data[ch].items()} for ch in CHANNELS}
-        order = max(o for o, keys in KEYS_BY_ORDER.items() if all(k in channels["avg"] for k in keys))
-        return cls(arr(data["theta_o"]), arr(data["kd"]), channels, order, name=name)
+        def arr(v, where, length=None, finite=False):
+            if not isinstance(v, list):
+                raise ValueError(f"'{where}' must be a list of numbers, not {type(v).__name__}")
+            if not 1 <= len(v) <= MAX_JSON_LIST or (length is not None and len(v) != length):
+                want = f"{length}" if length is not None else f"1 to {MAX_JSON_LIST}"
+                raise ValueError(f"'{where}' has {len(v)} values, expected {want}")
+            out = np.empty(len(v))
+            for i, x in enumerate(v):
+                if x is None and not finite:
+                    out[i] = np.nan
+                elif isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) \
+                        and abs(x) < 1e300:
+                    out[i] = float(x)
+                else:
+                    raise ValueError(f"'{where}[{i}]' is not a finite number: {str(x)[:40]!r}")
+            return out
+
+        if not isinstance(data, dict):
+            raise ValueError(f"expected an object with theta_o, kd and channels, not {type(data).__name__}")
+        for key in ("theta_o", "kd", *CHANNELS):
+            if key not in data:
+                raise ValueError(f"'{key}' is missing")
+        theta = arr(data["theta_o"], "theta_o", finite=True)
+        if (theta < 0).any() or (theta >= math.pi / 2).any():
+            raise ValueError("'theta_o' values must lie in [0, pi/2) radians")
+        kd = arr(data["kd"], "kd", 3, finite=True)
+        channels = {}
+        for ch in CHANNELS:
+            if not isinstance(data[ch], dict):
+                raise ValueError(f"'{ch}' must be an object of profile lists")
+            channels[ch] = {k: arr(v, f"{ch}.{k}", len(theta)) for k, v in data[ch].items() if k in PROFILE_KEYS}
+        orders = [o for o, keys in KEYS_BY_ORDER.items() if all(k in channels[ch] for ch in CHANNELS for k in keys)]
+        if not orders:
+            raise ValueError("'alpha' is missing from a channel")
+        return cls(theta, kd, channels, max(orders), name=name)
 
 
 FLOORS = ("min", "robust")

@@ -55,11 +55,13 @@ def resolve_environment(name_or_path=None) -> str:
     if text in bundled:
         return bundled[text]
     if os.path.sep in text or os.path.splitext(text)[1]:
-        if not os.path.isfile(text):
+        if not os.path.lexists(text):
             raise ValueError(f"{text}: environment file not found")
         if os.path.splitext(text)[1].lower() not in EXTENSIONS:
             raise ValueError(f"{text}: not an HDR environment (expected .exr or .hdr)")
-        return os.path.abspath(text)
+        path = os.path.abspath(text)
+        load_environment(path)  # the same checks for both preview paths, before either uses it
+        return path
     names = ", ".join(sorted(bundled)) or "none found"
     raise ValueError(f"{text}: no such bundled environment (bundled: {names}); or give a file path")
 
@@ -69,11 +71,18 @@ _LOADED = {}
 
 def load_environment(path) -> Environment:
     """The map at ``path`` as an engine Environment (cached per file and modification time)."""
+    from ..core.render.envmap import check_radiance
+    from ..core.safeio import check_image_header, register_input
+
     path = os.path.abspath(os.fspath(path))
     st = os.stat(path)
-    key = (path, st.st_mtime_ns, st.st_size)
+    key = (path, st.st_mtime_ns, st.st_size, st.st_ino)
     if key in _LOADED:
+        register_input(path)
         return _LOADED[key]
+    # The header first: a regular file, a real EXR/HDR, within the pixel limit. Blender
+    # would otherwise try to allocate whatever a header claims (and die).
+    check_image_header(path)
     img = bpy.data.images.load(path, check_existing=True)
     try:
         w, h = img.size
@@ -84,6 +93,7 @@ def load_environment(path) -> Environment:
         pix = buf.reshape(h, w, img.channels)[::-1, :, :3]      # Blender rows go bottom-up
         if img.channels < 3:
             pix = np.repeat(buf.reshape(h, w, img.channels)[::-1, :, :1], 3, axis=2)
+        check_radiance(pix, path)
         env = Environment(np.ascontiguousarray(pix), os.path.splitext(os.path.basename(path))[0])
     finally:
         if img.users == 0:

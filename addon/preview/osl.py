@@ -52,14 +52,14 @@ def compile_shader(name: str, folder=None) -> str:
         if part.endswith((".osl", ".h")):
             with open(os.path.join(SHADER_DIR, part), "rb") as fh:
                 h.update(part.encode() + fh.read())
-    folder = folder or cache_dir()
-    os.makedirs(folder, exist_ok=True)
+    from ..core.atomic import atomic_path, own_folder
+
+    folder = own_folder(folder or cache_dir())
     dst = os.path.join(folder, f"{name}-{h.hexdigest()[:12]}.oso")
-    if not os.path.exists(dst):
-        tmp = dst + f".tmp{os.getpid()}"
-        if not _cycles.osl_compile(src, tmp):
-            raise RuntimeError(f"{src}: OSL compilation failed (see the console for the compiler's errors)")
-        os.replace(tmp, dst)
+    if not os.path.isfile(dst):
+        with atomic_path(dst, ".oso") as tmp:
+            if not _cycles.osl_compile(src, tmp):
+                raise RuntimeError(f"{src}: OSL compilation failed (see the console for the compiler's errors)")
     return dst
 
 
@@ -136,16 +136,23 @@ def table_texture_pixels(values, kd):
 
 
 def write_table_texture(brdf, folder=None) -> str:
-    """The table texture of a TableBRDF, written once per content (OIIO caches textures by path,
-    so a changed table must get a new file name)."""
-    folder = folder or cache_dir()
-    path = os.path.join(folder, f"table-v1-{brdf.content_key()[:24]}.exr")
-    if os.path.exists(path):
-        os.utime(path)                       # recently used: pruned last
-        return path
-    from ..core.render.cache import prune
+    """The table texture of a TableBRDF, written once per content and sealed (``cachefs``): a
+    texture whose bytes no longer match its seal is replaced by a freshly written one under a
+    new name (OIIO caches textures by path, so a changed file must get a new name too)."""
+    import glob
+    import secrets
+
+    from ..core import cachefs
+    from ..core.limits import TABLE_TEXTURE_MAX_BYTES, TABLE_TEXTURE_MAX_ENTRIES
     from .environment import write_environment
 
+    folder = cachefs.cache_folder(folder or cache_dir())
+    stem = f"table-v2-{brdf.content_key()[:24]}"
+    for path in sorted(glob.glob(os.path.join(glob.escape(folder), stem + "-*.exr"))):
+        if cachefs.verified(path):
+            return path
+    path = os.path.join(folder, f"{stem}-{secrets.token_hex(4)}.exr")
     out = write_environment(table_texture_pixels(brdf.values, brdf.kd), path)
-    prune(folder, "table-", ".exr", 16)          # about 20 MB each; a row of 16 tables stays
+    cachefs.write_seal(out)
+    cachefs.prune(folder, TABLE_TEXTURE_MAX_ENTRIES, TABLE_TEXTURE_MAX_BYTES, keep=(out,), prefix="table-")
     return out

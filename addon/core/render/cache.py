@@ -37,18 +37,25 @@ def bake_key(brdf, env, diameter, lobe_samples, seed=0) -> str:
 
 
 class BakeCache:
-    """In memory (least recently used first out) and, with ``folder``, on disk as .npz (the
-    ``max_files`` most recently written are kept: slider drags would otherwise fill the disk)."""
+    """In memory (least recently used first out) and, with ``folder``, on disk as sealed .npz
+    files (``cachefs``: verified on read, rebuilt when damaged; bounded by
+    ``limits.BAKE_CACHE_MAX_*``, least recently used first: slider drags would otherwise fill
+    the disk)."""
 
-    def __init__(self, folder=None, max_items=32, max_files=256):
+    def __init__(self, folder=None, max_items=32, max_files=None, max_bytes=None):
+        from ..limits import BAKE_CACHE_MAX_BYTES, BAKE_CACHE_MAX_ENTRIES
+
         self.folder = folder
         self.max_items = int(max_items)
-        self.max_files = int(max_files)
+        self.max_files = int(max_files or BAKE_CACHE_MAX_ENTRIES)
+        self.max_bytes = int(max_bytes or BAKE_CACHE_MAX_BYTES)
         self._mem = OrderedDict()
         self.computed = []          # keys baked by this cache, in order (tests and stats read it)
 
     def get(self, brdf, env, diameter, lobe_samples=64, seed=0):
         """(radiance (D, D, 3), coverage (D, D), key), baking only on a miss."""
+        from .. import cachefs
+
         key = bake_key(brdf, env, diameter, lobe_samples, seed)
         if key in self._mem:
             self._mem.move_to_end(key)
@@ -56,23 +63,25 @@ class BakeCache:
             return rgb, cov, key
         path = os.path.join(self.folder, f"bake-{key[:24]}.npz") if self.folder else None
         if path and os.path.exists(path):
-            try:
-                with np.load(path) as z:
-                    rgb, cov = z["radiance"], z["coverage"]
-                self._store(key, rgb, cov)
-                return rgb, cov, key
-            except (OSError, ValueError, KeyError):
-                pass  # a damaged cache file is just a miss
+            got = _read_bake(path, int(diameter))
+            if got is not None:
+                self._store(key, *got)
+                return got[0], got[1], key
         rgb, cov = bake_sphere(brdf, env, diameter, lobe_samples, seed)
         self.computed.append(key)
         self._store(key, rgb, cov)
         if path:
             from ..atomic import atomic_path
 
-            with atomic_path(path, ".npz") as tmp:
-                with open(tmp, "wb") as fh:
-                    np.savez(fh, radiance=rgb, coverage=cov)
-            prune(self.folder, "bake-", ".npz", self.max_files)
+            try:
+                cachefs.cache_folder(self.folder)
+                with atomic_path(path, ".npz") as tmp:
+                    with open(tmp, "wb") as fh:
+                        np.savez(fh, radiance=rgb, coverage=cov)
+                cachefs.write_seal(path)
+                cachefs.prune(self.folder, self.max_files, self.max_bytes, keep=(path,), prefix="bake-")
+            except (OSError, ValueError):
+                pass  # an unwritable cache only costs time
         return rgb, cov, key
 
     def _store(self, key, rgb, cov):
@@ -82,23 +91,28 @@ class BakeCache:
             self._mem.popitem(last=False)
 
 
-def prune(folder, prefix, suffix, keep):
-    """Delete all but the ``keep`` newest files ``prefix*suffix`` in ``folder``."""
-    try:
-        names = [n for n in os.listdir(folder) if n.startswith(prefix) and n.endswith(suffix)]
-    except OSError:
-        return
-    if len(names) <= keep:
-        return
-    def age(path):
-        try:
-            return os.path.getmtime(path)
-        except OSError:  # removed meanwhile by another Blender sharing the cache
-            return -1.0
+def _read_bake(path, diameter):
+    """(radiance, coverage) of a sealed bake file, or None if it is damaged or not a bake."""
+    import io
 
-    paths = sorted((os.path.join(folder, n) for n in names), key=age, reverse=True)
-    for p in paths[keep:]:
-        try:
-            os.unlink(p)
-        except OSError:
-            pass
+    from .. import cachefs
+
+    data = cachefs.read_verified(path)
+    if data is None:
+        return None
+    try:
+        with np.load(io.BytesIO(data)) as z:
+            rgb, cov = np.asarray(z["radiance"]), np.asarray(z["coverage"])
+    except Exception:  # noqa: BLE001 - a damaged zip raises many kinds; it is only a miss
+        return None
+    if rgb.shape != (diameter, diameter, 3) or cov.shape != (diameter, diameter) or rgb.dtype.kind != "f" \
+            or not np.isfinite(rgb).all():
+        return None
+    return rgb, cov
+
+
+def prune(folder, prefix, suffix, keep):
+    """Keep the ``keep`` most recently used sealed entries ``prefix*suffix`` (cachefs.prune)."""
+    from .. import cachefs
+
+    cachefs.prune(folder, keep, 1 << 62, prefix=prefix)

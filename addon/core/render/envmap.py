@@ -16,6 +16,28 @@ import math
 import numpy as np
 
 
+NEGATIVE_SHARE = 1e-3  # of a map's light; filtered HDRIs hold slight negatives (Blender's courtyard: -1.6e-4)
+
+
+def check_radiance(pixels, name="environment"):
+    """Refuse a map no renderer can show the same way: NaN or inf anywhere, no light at all, or
+    negative values holding more than NEGATIVE_SHARE of its light (below that they are
+    ringing from filtering: the baked path clamps them to 0, and the OSL path's difference
+    stays under that share). Both preview paths call this on every map file, so a map one
+    path would render is never refused by the other."""
+    a = np.asarray(pixels)[..., :3]
+    finite = np.isfinite(a)
+    if not finite.all():
+        raise ValueError(f"{name}: the map holds {int((~finite).sum())} NaN or inf values")
+    pos = float(np.maximum(a, 0.0).sum(dtype=np.float64))
+    if pos <= 0.0:
+        raise ValueError(f"{name}: the map holds no light (every value is zero or negative)")
+    neg = float(np.minimum(a, 0.0).sum(dtype=np.float64))
+    if -neg > NEGATIVE_SHARE * pos:
+        raise ValueError(f"{name}: the map holds {int((a < 0).sum())} negative values (down to {float(a.min()):.3g}, "
+                         f"{-neg / pos:.1%} of its light); radiance cannot be negative")
+
+
 class Environment:
     def __init__(self, pixels, name: str = ""):
         a = np.asarray(pixels)
