@@ -283,7 +283,7 @@ def _witnesses(table, prof, fit, mode, dmu, k):
     re-measured fit at gain 1, and again after the edit's energy passes (each view's gain set by
     its own error), which is a table showing all three sliders' values at once. Each comes with
     the largest energy error up to ENERGY_VIEWS."""
-    from .core.edit import (ENERGY_PASSES, ENERGY_VIEWS, GAIN_RANGE, EditTargets, _energy_ratio, synthesize,
+    from .core.edit.legacy import (ENERGY_PASSES, ENERGY_VIEWS, GAIN_RANGE, EditTargets, _energy_ratio, synthesize,
                             target_energy, view_goals)
     from .core.fits import fit_material
     from .core.profiles import compute_profiles
@@ -312,7 +312,7 @@ def bench_edit(quick):
     of a table that one synthesis actually produced, so they are reachable by construction:
     a miss there is the solver's fault, not the target's."""
     import samples
-    from .core.edit import ENERGY_TOLERANCE, EditTargets, _pair_geometry, edit, synthesize, target_energy
+    from .core.edit.legacy import ENERGY_TOLERANCE, EditTargets, _pair_geometry, edit, synthesize, target_energy
     from .core.fits import fit_material
     from .core.merl import read_merl
     from .core.profiles import compute_profiles

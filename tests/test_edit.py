@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from addon.core.edit import EditTargets, directional_albedo, edit, scale_to_albedo, solve_truncated, _trunc_moments
+from addon.core.edit.legacy import EditTargets, directional_albedo, edit, scale_to_albedo, solve_truncated, _trunc_moments
 from addon.core.fits import fit_material
 from addon.core.merl import lookup
 from addon.core.geometry import view_centred
@@ -102,7 +102,7 @@ def test_truncated_moments_and_density_agree_with_scipy_far_into_the_tails(m, s)
     # Lobes centred beyond the horizon (m = -6, s = 0.05: all the mass in a far-tail sliver)
     # are where a naive erf difference divides zero by zero.
     from scipy.stats import truncnorm
-    from addon.core.edit import _truncated_gauss
+    from addon.core.edit.legacy import _truncated_gauss
 
     a, b = (-math.pi / 2 - m) / s, (math.pi / 2 - m) / s
     ref = truncnorm(a, b, loc=m, scale=s)
@@ -122,7 +122,7 @@ def test_warp_to_the_measured_moments_reproduces_the_table(sample_table):
     # Not the identity shortcut: the full warp path with sliders set to the measured values
     # must solve to the identity map, so the table (and its moments) come back unchanged.
     # ggx_rough: its slope is inside [-1, 0], so the sliders are not clamped away from it.
-    from addon.core.edit import synthesize
+    from addon.core.edit.legacy import synthesize
 
     table = sample_table("ggx_rough")
     prof = compute_profiles(table)
@@ -168,7 +168,7 @@ def _shape_change(before, after, max_deg=60.0):
     ("model", "ggx_glossy", 1.3), ("model", "ggx_rough", 0.7), ("warp", "ggx_mirror", 0.7),
     ("warp", "ggx_mirror", 1.3), ("warp", "ggx_glossy", 0.7), ("warp", "ggx_glossy", 1.3), ("warp", "ggx_rough", 0.7)])
 def test_variance_edit_round_trips(sample_table, tmp_path, mode, name, scale):
-    from addon.core.edit import target_energy
+    from addon.core.edit.legacy import target_energy
 
     table = sample_table(name)
     prof = compute_profiles(table)
@@ -199,7 +199,7 @@ def test_variance_edit_round_trips(sample_table, tmp_path, mode, name, scale):
 
 
 def _round(z, energy_off):
-    from addon.core.edit import _Round
+    from addon.core.edit.legacy import _Round
 
     z = np.asarray(z, float)
     return _Round(x=np.zeros(2), y=np.zeros(2), z=z, energy_off=energy_off, ratio=None, out=None, notes=[],
@@ -207,7 +207,7 @@ def _round(z, energy_off):
 
 
 def test_a_near_miss_keeps_the_round_that_holds_the_energy():
-    from addon.core.edit import ROUND_UNITS, _pick_round
+    from addon.core.edit.legacy import ROUND_UNITS, _pick_round
 
     def z_var(off):  # the variance residual, in ROUND_UNITS of log variance, for a relative miss
         return math.log1p(off) / ROUND_UNITS[1]
@@ -235,7 +235,7 @@ def test_a_near_miss_keeps_the_round_that_holds_the_energy():
 
 
 def test_rounds_go_past_the_budget_only_while_they_close_in():
-    from addon.core.edit import CLOSING_GAIN, _closing_in
+    from addon.core.edit.legacy import CLOSING_GAIN, _closing_in
 
     def phase(*sizes):  # rounds with only the slope off, so that size = 3 |z_slope|
         return [_round((z / 3.0, 0.0), 0.0) for z in sizes]
@@ -256,7 +256,7 @@ def test_rounds_go_past_the_budget_only_while_they_close_in():
 def _stub_rounds(monkeypatch, table, prof, fit, remeasured):
     """edit() with the synthesis, re-measurement and fit stubbed: every round re-measures
     ``remeasured``, so only the loop's own rules decide when the rounds stop."""
-    import addon.core.edit as E
+    import addon.core.edit.legacy as E
 
     made = table.copy()
     monkeypatch.setattr(E, "synthesize", lambda *a, **k: (made, []))
@@ -294,7 +294,7 @@ def test_rounds_that_settle_early_end_the_progress_full(glossy, monkeypatch):
 
 def test_model_mode_reaches_a_witnessed_target_on_a_broad_lobe(sample_table, tmp_path):
     # The target is what one synthesis re-measured at, so some reciprocal table has it.
-    from addon.core.edit import synthesize, view_goals
+    from addon.core.edit.legacy import synthesize, view_goals
 
     table = sample_table("ggx_rough")
     prof = compute_profiles(table)
@@ -313,7 +313,7 @@ def test_model_mode_reaches_a_witnessed_target_on_a_broad_lobe(sample_table, tmp
 def test_warp_mode_reaches_witnessed_targets(sample_table, tmp_path):
     # Targets that one synthesis re-measured at, so some table of this family has them: a
     # near-mirror and a broad lobe, each moved 0.05 away from the normal.
-    from addon.core.edit import synthesize, view_goals
+    from addon.core.edit.legacy import synthesize, view_goals
 
     for name, dmu, scale in (("ggx_mirror", -0.05, 1.0), ("ggx_rough", -0.05, 1.0)):
         table = sample_table(name)

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from _stress import assert_finite_tree, assert_profiles_sane
-from addon.core.edit import (MIN_SIGMA2, EditTargets, _trunc_moments, _truncated_gauss, edit, resolve_targets,
+from addon.core.edit.legacy import (MIN_SIGMA2, EditTargets, _trunc_moments, _truncated_gauss, edit, resolve_targets,
                              solve_truncated, target_energy)
 from addon.core.fits import LAMBERT_VARIANCE, fit_material
 from addon.core.integrate import default_views

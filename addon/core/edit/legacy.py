@@ -26,10 +26,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import log_ndtr
 
-from .fits import LAMBERT_VARIANCE, correlation_curve, fit_material
-from .geometry import HALF_PI, directions_from_half_diff, view_centred_angles
-from .merl import MerlTable, cell_centres, cell_indices_view
-from .profiles import Profiles, compute_profiles, specular_values
+from ..fits import LAMBERT_VARIANCE, correlation_curve, fit_material
+from ..geometry import HALF_PI, directions_from_half_diff, view_centred_angles
+from ..merl import MerlTable, cell_centres, cell_indices_view
+from ..profiles import Profiles, compute_profiles, specular_values
 
 MODES = ("warp", "model")
 
@@ -121,7 +121,7 @@ def _graded_nodes(centre, scale, n_gauss=3, ratio=1.35):
 
     The finest panel is capped at 0.03 rad so that broad lobes still resolve the table's
     1-degree cells and the clipping edges."""
-    from .quadrature import gauss_legendre, graded_edges
+    from ..quadrature import gauss_legendre, graded_edges
 
     e = graded_edges(centre, -HALF_PI, HALF_PI, min(max(scale, 1e-6) / 4.0, 0.03), ratio)
     xg, wg = gauss_legendre(n_gauss)
@@ -873,7 +873,7 @@ def _tabulate(table, evaluate, kd, grid, geometric=False):
 
 def directional_albedo(table: MerlTable, views=None) -> np.ndarray:
     """(views, 3): integral of rho cos(theta_i) over the hemisphere for each view."""
-    from .integrate import default_views, get_operator
+    from ..integrate import default_views, get_operator
 
     views = default_views(30, 89.0) if views is None else np.asarray(views, float)
     op = get_operator(views, memo=False)
