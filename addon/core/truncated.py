@@ -56,6 +56,18 @@ def variance_cap(mean):
     return np.where(np.abs(mu) >= 1.0, 0.0, np.maximum(_exp_var(u), 0.0) * HALF_PI ** 2)
 
 
+_CAP_GRID = {}
+
+
+def variance_cap_fast(mean):
+    """``variance_cap`` interpolated on a fine grid of means (for the reach scans)."""
+    if "g" not in _CAP_GRID:
+        g = np.linspace(-HALF_PI, HALF_PI, 4001)
+        _CAP_GRID["g"] = (g, variance_cap(g))
+    g, v = _CAP_GRID["g"]
+    return np.interp(np.asarray(mean, float), g, v)
+
+
 def _oriented(m, s):
     """Standardized bounds, mirrored when the interval lies mostly above the mean (ndtr keeps
     full relative precision only in the lower tail); returns (a, b, flip)."""

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..fits import LAMBERT_VARIANCE
 from ..geometry import HALF_PI
-from ..truncated import variance_cap
+from ..truncated import variance_cap_fast as variance_cap
 
 MAX_SHIFT_SIGMAS = 1.0
 MIN_REACHABLE = 0.9
@@ -56,6 +56,7 @@ def view_reachable(theta_o, mean, var_tt, var_pp, measured_mean, measured_var):
     """(V, C) bool: whether each view's target (mean, variances) can be held by a reciprocal table."""
     theta_o = np.asarray(theta_o, float)[:, None] if np.ndim(theta_o) == 1 else np.asarray(theta_o, float)
     mean, var_tt, var_pp = (np.nan_to_num(np.asarray(a, float)) for a in (mean, var_tt, var_pp))
+    mean, var_tt, var_pp = np.broadcast_arrays(mean, var_tt, var_pp)
     floor = cell_variance_floor(theta_o, mean)
     # Measured slices are heavier-tailed than Gaussians: one may already be wider than the
     # truncated family's limit, and keeping that width is always in reach.
@@ -122,21 +123,22 @@ def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableR
     s0, m0 = float(fit["sigma2"]), float(fit["mu_slope"])
     grid = np.geomspace(max(s0 / 50.0, 1e-7), LAMBERT_VARIANCE, n_sigma)
     grid = np.unique(np.concatenate([grid, [s0]]))
-    mus = np.linspace(-1.0, 0.0, n_mu)
+    # The slider's range holds the fitted slope (measured ones go below -1).
+    mus = np.linspace(min(-1.0, m0) - 0.05, max(0.0, m0), n_mu)
     base = view_targets(prof, fit, EditTargets(mode=mode), m0, s0)
     counted = counted_views(theta, base.alpha)
     mm, mv = base.mean, base.variance
     lo, hi = np.full(len(grid), np.nan), np.full(len(grid), np.nan)
+    n = counted.sum()
     for k, s2 in enumerate(grid):
         vt = view_targets(prof, fit, EditTargets(mode=mode), m0, s2)
-        ok_rows = []
-        for mu in mus:
-            shift = (mu - m0) * theta[:, None] if mode == "warp" else 0.0
-            mean = vt.mean + shift if mode == "warp" else (mu * theta)[:, None] * np.ones((1, 3))
-            r = view_reachable(theta, mean, vt.var_tt, vt.var_pp, mm, mv)
-            n = counted.sum()
-            ok_rows.append(n > 0 and (r & counted).sum() >= MIN_REACHABLE * n)
-        ok_rows = np.array(ok_rows)
+        # All mean slopes at once: (mu, V, C).
+        if mode == "warp":
+            mean = vt.mean[None] + (mus - m0)[:, None, None] * theta[None, :, None]
+        else:
+            mean = mus[:, None, None] * theta[None, :, None] * np.ones((1, 1, 3))
+        r = view_reachable(theta, mean, vt.var_tt[None], vt.var_pp[None], mm[None], mv[None])
+        ok_rows = (n > 0) & ((r & counted[None]).sum(axis=(1, 2)) >= MIN_REACHABLE * n)
         if ok_rows.any():
             lo[k], hi[k] = mus[ok_rows].min(), mus[ok_rows].max()
     have = np.isfinite(lo)

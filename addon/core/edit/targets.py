@@ -48,9 +48,11 @@ def resolve_targets(t: EditTargets, fit: dict):
     mu = fit["mu_slope"] if t.mu_slope is None else float(t.mu_slope)
     if not np.isfinite(mu):
         raise ValueError("mean slope must be finite")
-    if t.mu_slope is not None and not -1.0 <= mu <= 0.0:
-        warnings.append(f"mean slope {mu:+.3f} clamped to [-1, 0]")
-        mu = float(np.clip(mu, -1.0, 0.0))
+    # The slider's range is [-1, 0] widened to hold the fitted slope (SPEC: measured ones go below -1).
+    lo, hi = min(-1.0, fit["mu_slope"]), max(0.0, fit["mu_slope"])
+    if t.mu_slope is not None and not lo <= mu <= hi:
+        warnings.append(f"mean slope {mu:+.3f} clamped to [{lo:+.3f}, {hi:+.3f}]")
+        mu = float(np.clip(mu, lo, hi))
     if t.lock:
         if t.correlation_a is None:
             raise ValueError("the correlation lock needs the quadratic's coefficient a (fit a set first)")
