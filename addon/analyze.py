@@ -13,35 +13,85 @@ import numpy as np
 
 
 def material_name(path) -> str:
+    from .core.nbrdf import parse_source
+
+    path, name = parse_source(os.fspath(path))
+    if name:  # FILE:NAME, a material of a Neural-BRDF weights set
+        return name
     base = os.path.basename(os.fspath(path))
     return base[: -len(".binary")] if base.endswith(".binary") else os.path.splitext(base)[0]
 
 
+def _weights_specs(item, problems):
+    """A Neural-BRDF weights source with no material chosen: all of its materials, FILE:NAME."""
+    from .core.merl import MerlError
+    from .core.nbrdf import list_materials
+
+    try:
+        return [f"{item}:{name}" for name in list_materials(item)]
+    except MerlError as exc:
+        problems.append(str(exc))
+        return []
+
+
+def _qualify(paths):
+    """Names per input; materials of different weights sets that share a name get the set's stem."""
+    from .core.nbrdf import parse_source
+
+    names = [material_name(p) for p in paths]
+    count = {}
+    for n in names:
+        count[n] = count.get(n, 0) + 1
+    out = {}
+    for p, n in zip(paths, names):
+        src, key = parse_source(p)
+        if key and count[n] > 1:
+            n = f"{os.path.splitext(os.path.basename(os.path.normpath(src)))[0]}/{key}"
+        out[p] = n
+    return out
+
+
+def input_names(paths):
+    """The material name of each input (as ``collect_inputs`` checked them to be unique)."""
+    return [_qualify(paths)[p] for p in paths]
+
+
 def collect_inputs(items):
-    """Expand folders to their .binary files; returns (paths, problems)."""
+    """Expand folders to their .binary files, weights sets to their materials; (paths, problems)."""
+    from .core.nbrdf import is_weights_source, parse_source
+
     paths, problems = [], []
     for item in items:
+        item = os.fspath(item)
+        src, key = parse_source(item)
         if os.path.isdir(item):
             found = sorted(os.path.join(item, f) for f in os.listdir(item) if f.endswith(".binary"))
-            if not found:
+            if not found and any(f.endswith(".npy") for f in os.listdir(item)):
+                found = _weights_specs(item, problems)  # a folder of Neural-BRDF .npy weights
+            elif not found:
                 problems.append(f"{item}: folder has no .binary files")
             paths.extend(found)
+        elif key is not None:
+            paths.append(item)
+        elif os.path.exists(item) and is_weights_source(item):
+            paths.extend(_weights_specs(item, problems))
         elif os.path.exists(item):
             paths.append(item)
         else:
             problems.append(f"{item}: no such file or folder")
     names = {}
+    qualified = _qualify(paths)
     for p in paths:
-        names.setdefault(material_name(p), []).append(p)
+        names.setdefault(qualified[p], []).append(p)
     for name, ps in names.items():
         if len(ps) > 1:
             problems.append(f"{ps[1]}: material name '{name}' is used by another input too ({ps[0]})")
     return paths, problems
 
 
-def load_profiles(path, views=None):
-    """Profiles of a MERL file, or read back from a profiles JSON written by this tool."""
-    from .core.merl import read_merl
+def load_profiles(path, views=None, name=None):
+    """Profiles of a material source (MERL file, FILE:NAME of weights), or a profiles JSON."""
+    from .core.nbrdf import read_table
     from .core.profiles import Profiles, compute_profiles
 
     if str(path).endswith(".json"):
@@ -51,12 +101,12 @@ def load_profiles(path, views=None):
 
         try:
             with open(path) as fh:
-                return Profiles.from_json(json.load(fh), name=material_name(path))
+                return Profiles.from_json(json.load(fh), name=name or material_name(path))
         except (ValueError, KeyError, TypeError) as exc:
             raise MerlError(path, f"not a profiles JSON ({exc})") from None
-    table = read_merl(path)
+    table = read_table(path)
     prof = compute_profiles(table, views)
-    prof.name = material_name(path)
+    prof.name = name or material_name(path)
     return prof
 
 
@@ -172,6 +222,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print):
     paths = [p for p in paths if p not in bad_names]
     if not paths:
         return problems or ["no input files"]
+    qualified = _qualify(paths)
     t0 = time.perf_counter()
     results = run_parallel(paths, workers, progress)
     profiles, per_fit, seconds = {}, {}, []
@@ -179,7 +230,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print):
         if err:
             problems.append(err)
             continue
-        name = material_name(path)
+        name = qualified[path]
         profiles[name] = Profiles.from_json(pj, name=name)
         per_fit[name] = fit
         seconds.append(sec)

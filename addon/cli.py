@@ -75,12 +75,22 @@ def _progress(label, always=False):
     return report
 
 
+def _single_materials(specs):
+    """A weights set named with no material is an error for commands that take materials one by one."""
+    from .core.nbrdf import load_network, is_weights_source, parse_source
+
+    for spec in specs:
+        path, name = parse_source(spec)
+        if name is None and os.path.isfile(path) and is_weights_source(path):
+            load_network(path)  # raises, listing a few names, when the file holds several
+
+
 def cmd_profiles(args):
     from .core.integrate import default_views
-    from .core.merl import read_merl
+    from .core.nbrdf import read_table
     from .core.profiles import compute_profiles
 
-    table = read_merl(args.file)
+    table = read_table(args.file)
     views = default_views(args.elevations, args.max_elevation)
     prof = compute_profiles(table, views, max_order=args.max_order, split=not args.no_split,
                             interp=args.interp, progress=_progress("building slice rules (once)"))
@@ -95,14 +105,15 @@ def cmd_profiles(args):
 
 
 def cmd_fit(args):
-    from .analyze import collect_inputs, load_profiles, material_name
+    from .analyze import collect_inputs, input_names, load_profiles
     from .core.fits import fit_set
 
+    _single_materials(args.files)
     paths, problems = collect_inputs(args.files)
     if problems:
         raise InputError(problems[0])
-    names = [material_name(p) for p in paths]
-    profiles = {n: load_profiles(p) for n, p in zip(names, paths)}
+    names = input_names(paths)
+    profiles = {n: load_profiles(p, name=n) for n, p in zip(names, paths)}
     result = fit_set(profiles)
     write_json_atomic(result, args.out)
     for n in names:
@@ -151,11 +162,13 @@ def _finite(text):
 
 def cmd_edit(args):
     from .core.edit import EditTargets, edit
-    from .core.merl import read_merl, write_merl
+    from .core.merl import write_merl
+    from .core.nbrdf import parse_source, read_table
 
-    if os.path.exists(args.out) and os.path.samefile(args.out, args.file):
+    source = parse_source(args.file)[0]
+    if os.path.exists(args.out) and os.path.exists(source) and os.path.samefile(args.out, source):
         raise InputError(f"{args.out}: refusing to overwrite the input file; choose another output name")
-    table = read_merl(args.file)
+    table = read_table(args.file)
     colour = args.alpha or (1.0, 1.0, 1.0)
     targets = EditTargets(strength=args.alpha_scale if args.alpha_scale is not None else 1.0, colour=colour,
                           grazing_boost=args.grazing_boost, mu_slope=args.mu, sigma2=args.sigma2, mode=args.mode)
@@ -170,7 +183,7 @@ def cmd_edit(args):
     finally:
         if bar and shown[0] < shown[1]:
             sys.stderr.write("\n")  # an error cut the rounds short: end the bar's line before it
-    write_merl(res.table, args.out, source=args.file)
+    write_merl(res.table, args.out, source=source)
     mu = "—" if res.achieved_mu_slope is None else f"{res.achieved_mu_slope:+.4f}"
     s2 = "—" if res.achieved_sigma2 is None else f"{res.achieved_sigma2:.5f}"
     print(f"target   mean slope {res.target_mu_slope:+.4f}  variance {res.target_sigma2:.5f}")
@@ -200,7 +213,7 @@ def build_parser():
     sub = p.add_subparsers(dest="command", required=True)
 
     sp = sub.add_parser("profiles", help="moment profiles of one MERL file, as JSON")
-    sp.add_argument("file", help="MERL .binary file")
+    sp.add_argument("file", help="MERL .binary file; or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
     sp.add_argument("--out", required=True, help="output JSON path")
     sp.add_argument("--elevations", type=_positive_int, default=90, help="number of view elevations (90)")
     sp.add_argument("--max-elevation", type=_elevation, default=89.0, help="largest elevation in degrees (89)")
@@ -211,19 +224,19 @@ def build_parser():
     sp.set_defaults(func=cmd_profiles)
 
     sf = sub.add_parser("fit", help="Sec. 3.4 fits of one or more materials, as JSON")
-    sf.add_argument("files", nargs="+", help="MERL .binary files (or profiles JSON written by 'profiles')")
+    sf.add_argument("files", nargs="+", help="MERL .binary files (or profiles JSON written by 'profiles'); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
     sf.add_argument("--out", required=True, help="output JSON path")
     sf.set_defaults(func=cmd_fit)
 
     sa = sub.add_parser("analyze", help="profiles, fits, plots and a summary table for a set of materials")
-    sa.add_argument("inputs", nargs="+", help="folders of .binary files, or files")
+    sa.add_argument("inputs", nargs="+", help="folders of .binary files, or files; a Neural-BRDF weights file or .npy folder means all its materials, FILE:NAME one")
     sa.add_argument("--out", required=True, help="output folder")
     sa.add_argument("--jobs", type=_positive_int, default=None, help="worker processes (default: all cores)")
     sa.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sa.set_defaults(func=cmd_analyze)
 
     se = sub.add_parser("edit", help="re-synthesize a MERL file from moment sliders")
-    se.add_argument("file", help="input MERL .binary file (never modified)")
+    se.add_argument("file", help="input MERL .binary file (never modified); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
     se.add_argument("--out", required=True, help="output MERL .binary path (must differ from the input)")
     energy = se.add_mutually_exclusive_group()
     energy.add_argument("--alpha-scale", type=_finite, help="scale the energy by S")
@@ -235,7 +248,7 @@ def build_parser():
     se.set_defaults(func=cmd_edit)
 
     sr = sub.add_parser("render", help="original (and edited) spheres rendered by Cycles (needs the bpy module)")
-    sr.add_argument("file", help="MERL .binary file (the original)")
+    sr.add_argument("file", help="MERL .binary file (the original); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
     sr.add_argument("--edited", help="edited MERL .binary file, shown to the right")
     sr.add_argument("--env", help="bundled HDRI name (default studio) or an .exr/.hdr path")
     sr.add_argument("--path", choices=("auto", "osl", "baked"), default="auto",

@@ -99,12 +99,35 @@ ORDER_PANELS = {
 }
 
 
-def _legend_outside(fig, colours, limit=40):
+LEGEND_ROWS = 40
+
+
+def _legend_columns(n):
+    return max(1, -(-n // LEGEND_ROWS))
+
+
+def _legend_outside(fig, colours):
     from matplotlib.lines import Line2D
 
-    names = sorted(colours)[:limit]
+    names = sorted(colours)
     handles = [Line2D([], [], color=colours[n], lw=2) for n in names]
-    fig.legend(handles, names, loc="center right", fontsize=7, frameon=False)
+    fig.legend(handles, names, loc="center right", fontsize=7 if len(names) <= LEGEND_ROWS else 6,
+               ncol=_legend_columns(len(names)), frameon=False)
+
+
+def _set_legend(fig, ax, n, ncol=1):
+    """A legend in the axes for a few materials; beside them, in columns, for a large set
+    (59 names inside a 5-inch axes would hide the data and defeat tight_layout)."""
+    if n <= 16:
+        ax.legend(fontsize=7, ncol=ncol)
+        fig.tight_layout()
+        return
+    cols = -(-(n + 3) // 34)
+    w, h = fig.get_size_inches()
+    fig.set_size_inches(w + 2.1 * cols, h)
+    ax.legend(fontsize=6, ncol=cols, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False,
+              borderaxespad=0.0)
+    fig.tight_layout()
 
 
 def plot_set_profiles(profiles, folder, channel="avg"):
@@ -115,7 +138,9 @@ def plot_set_profiles(profiles, folder, channel="avg"):
         keys = [k for k in keys if all(k[0] in p[channel] for p in profiles.values())]
         if not keys:
             continue
-        plt, fig, axes = _figure(1, len(keys), (4.2 * len(keys) + 2.0, 3.8))
+        cols = _legend_columns(len(colours))
+        width = 4.2 * len(keys) + 2.0 * cols
+        plt, fig, axes = _figure(1, len(keys), (width, 3.8 if cols == 1 else 4.6))
         for ax, (key, label) in zip(axes.flat, keys):
             for name, p in profiles.items():
                 ax.plot(np.degrees(p.theta_o), p[channel][key], color=colours[name], lw=1.0)
@@ -125,7 +150,7 @@ def plot_set_profiles(profiles, folder, channel="avg"):
             ax.set_xlim(0, 90)
             ax.grid(alpha=0.3)
         fig.suptitle(f"{title} — {len(profiles)} materials ({channel} channel)")
-        fig.tight_layout(rect=(0, 0, 0.84, 1))
+        fig.tight_layout(rect=(0, 0, 1.0 - 2.0 * cols / width, 1))
         _legend_outside(fig, colours)
         path = os.path.join(folder, f"profiles_order{order}.png")
         save_figure(fig, path)
@@ -231,8 +256,7 @@ def plot_energy_spline(profiles, fits, joint, path, channel="avg"):
     ax.set_ylabel("α / α̃b (relative energy)")
     ax.set_title("Energy: constant base α̃b, Hermite boost from θ0 (slope 0) to θ1, then a line")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
+    _set_legend(fig, ax, len(fits), ncol=2)
     save_figure(fig, path)
     plt.close(fig)
     return path
@@ -261,8 +285,7 @@ def plot_correlation(fits, correlation, path):
     ax.set_ylabel("average variance σ̃² (rad²)")
     ax.set_title("Mean–variance correlation (× = outside the paper's model)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
+    _set_legend(fig, ax, len(fits))
     save_figure(fig, path)
     plt.close(fig)
     return path

@@ -11,16 +11,17 @@ import time
 
 
 def run(args, input_error):
-    from .core.merl import read_merl
+    from .core.nbrdf import parse_source, read_table
 
     out = os.fspath(args.out)
     if os.path.splitext(out)[1].lower() not in (".png", ".exr"):
         raise input_error(f"{out}: the output must end in .png (display) or .exr (linear radiance)")
     for src in filter(None, (args.file, args.edited)):
+        src = parse_source(src)[0]
         if os.path.exists(out) and os.path.exists(src) and os.path.samefile(out, src):
             raise input_error(f"{out}: refusing to overwrite the input file; choose another output name")
-    original = read_merl(args.file)
-    edited = read_merl(args.edited) if args.edited else None
+    original = read_table(args.file)
+    edited = read_table(args.edited) if args.edited else None
     t0 = time.perf_counter()
     try:
         from .wheel import import_bpy

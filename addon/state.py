@@ -31,6 +31,7 @@ def unpack_profiles(text: str):
 
 
 class BRDFMomentsMaterial(bpy.types.PropertyGroup):
+    # A MERL file, or FILE:NAME for a material of a Neural-BRDF weights file (see Load).
     source_path: bpy.props.StringProperty(name="MERL file", subtype="FILE_PATH")
     analysed: bpy.props.BoolProperty(default=False)
     profiles_data: bpy.props.StringProperty(options={"HIDDEN"})

@@ -29,26 +29,28 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
     def start(self, context):
         from ..addon.core.edit import edit, scale_to_albedo
         from ..addon.core.fits import fit_material
-        from ..addon.core.merl import read_merl, write_merl
+        from ..addon.core.merl import write_merl
+        from ..addon.core.nbrdf import read_table, source_file
         from ..addon.core.names import safe_name
         from ..addon.core.profiles import compute_profiles
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
-        source = bpy.path.abspath(state.source_path)
-        if not os.path.isfile(source):
+        spec = bpy.path.abspath(state.source_path)
+        source = source_file(spec)  # FILE of a FILE:NAME network source
+        if not os.path.exists(source):
             raise ValueError(f"{source}: the source MERL file is missing; load it again to edit")
         targets = state.slider_targets()
         scale = state.scale_to_one
         # Content-addressed output: the same file and sliders give the same name, and an
         # edit never overwrites another material's table (or the input).
         st = os.stat(source)
-        key = json.dumps([source, st.st_size, st.st_mtime_ns, repr(targets), scale], sort_keys=True)
+        key = json.dumps([spec, st.st_size, st.st_mtime_ns, repr(targets), scale], sort_keys=True)
         out = os.path.join(edits_folder(), f"{safe_name(mat.name)}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.binary")
         self._mat_name = mat.name
 
         def work(report_progress):
-            table = read_merl(source)
+            table = read_table(spec)
             prof = compute_profiles(table)
             fit = fit_material(prof)
             report_progress(1, 10)

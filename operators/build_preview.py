@@ -41,6 +41,7 @@ class BRDFMOMENTS_OT_build_preview(bpy.types.Operator):
 
     def _build(self, context):
         from ..addon.core.merl import read_merl
+        from ..addon.core.nbrdf import read_table, source_exists
         from ..addon.preview import build_preview, render_still
 
         mat = analysed_material(context, self.material)
@@ -51,8 +52,8 @@ class BRDFMOMENTS_OT_build_preview(bpy.types.Operator):
         path, mode = self.path.lower(), self.mode.lower()
         source = bpy.path.abspath(state.source_path)
         live = mode == "model" and path in ("osl", "auto")
-        if os.path.isfile(source):
-            original = read_merl(source)
+        if source_exists(source):
+            original = read_table(source)  # a MERL file, or FILE:NAME of a network
         elif live or path == "baked":
             original = state.model_params()  # the .blend outlived its MERL file: the fitted model stands in
         else:

@@ -31,17 +31,17 @@ def analysed_material(context, name=""):
 def analysis_work(path):
     """A function of ``report_progress`` that reads, analyses and fits ``path`` (no bpy)."""
     from ..addon.core.fits import fit_material
-    from ..addon.core.merl import read_merl
+    from ..addon.core.nbrdf import read_table, source_exists
     from ..addon.core.profiles import compute_profiles
 
     path = bpy.path.abspath(path) if path.startswith("//") else path
     if not path:
         raise ValueError("no MERL file chosen")
-    if not os.path.isfile(path):
+    if not source_exists(path):
         raise ValueError(f"{path}: no such file")
 
     def work(report_progress):
-        table = read_merl(path)
+        table = read_table(path)  # a MERL file, or FILE:NAME of a Neural-BRDF network
         report_progress(1, 100)
         # The slice operator is built once per machine (minutes), then memory-mapped: the
         # progress bar matters on that first run.

@@ -88,7 +88,9 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
             if not state.edited_path or not os.path.isfile(state.edited_path):
                 raise ValueError(f"{mat.name}: nothing to export yet; press Apply to re-synthesize the table")
             dest = safe_export_path(folder, f"{mat.name}_edited", ".binary")
-            write_merl(read_merl(state.edited_path), dest, source=bpy.path.abspath(state.source_path))
+            from ..addon.core.nbrdf import source_file
+
+            write_merl(read_merl(state.edited_path), dest, source=source_file(bpy.path.abspath(state.source_path)))
             written.append(dest)
         elif self.what == "PROFILES":
             data = {"material": mat.name, "source": state.source_path, "measured": state.profiles().to_json()}

@@ -1,8 +1,14 @@
-"""Sample materials: analytic BRDFs tabulated into MERL files on demand.
+"""Sample materials: analytic BRDFs and measured Neural-BRDF networks, made into MERL files on demand.
 
 Tables are 35 MB each, so they are made when first asked for and cached in the
 git-ignored ``samples/.cache`` (or ``$BRDF_MOMENTS_SAMPLES``). Tabulation is deterministic:
 the same name always gives the same bytes.
+
+Measured materials are named ``SET/NAME``: ``rgl/NAME`` (51 isotropic materials of the RGL
+database, EPFL) and ``nielsen/NAME`` (8 of Nielsen, Jensen and Ramamoorthi 2015), decoded
+from the pre-trained networks of Sztrajman, Rainer, Ritschel and Weyrich 2021 (MIT licence,
+``samples/measured/``). Their cache file names carry a hash of the weights, so a changed
+weights file decodes afresh.
 """
 
 from __future__ import annotations
@@ -53,12 +59,67 @@ def cache_dir() -> str:
     return os.environ.get("BRDF_MOMENTS_SAMPLES") or os.path.join(here, ".cache")
 
 
+MEASURED_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "measured")
+# Prefix of a measured set -> its weights file in samples/measured/.
+MEASURED_SETS = {
+    "rgl": "nbrdf-rgl-isotropic.npz",
+    "nielsen": "nbrdf-nielsen.npz",
+}
+
+
+def measured_names() -> list[str]:
+    """All measured materials, ``SET/NAME`` (the 51 RGL and 8 Nielsen networks)."""
+    from addon.core.nbrdf import list_materials
+
+    return [f"{prefix}/{name}" for prefix, fname in MEASURED_SETS.items()
+            for name in list_materials(os.path.join(MEASURED_DIR, fname))]
+
+
+def measured_source(name: str):
+    """(weights file, material key) of a measured sample name ``SET/NAME``."""
+    prefix, sep, key = name.partition("/")
+    if not sep or prefix not in MEASURED_SETS or not key:
+        raise KeyError(f"unknown sample {name!r}; measured samples are named "
+                       f"{' or '.join(p + '/NAME' for p in MEASURED_SETS)} (see python -m samples --list)")
+    return os.path.join(MEASURED_DIR, MEASURED_SETS[prefix]), key
+
+
+def _measured_path(name: str, force: bool) -> str:
+    from addon.core.merl import write_merl
+    from addon.core.nbrdf import WeightsError, decode, load_network
+
+    weights, key = measured_source(name)
+    try:
+        net = load_network(weights, key)
+    except WeightsError as exc:
+        raise KeyError(f"unknown sample {name!r}: {exc}") from None
+    folder = cache_dir()
+    os.makedirs(folder, exist_ok=True)
+    stem = "nbrdf-" + name.replace("/", "-")
+    path = os.path.join(folder, f"{stem}-{net.digest()}.binary")
+    if force or not os.path.exists(path):
+        write_merl(decode(net), path)
+        # Drop tables decoded from older weights of the same material: no leftovers.
+        for other in os.listdir(folder):
+            full = os.path.join(folder, other)
+            if (other.startswith(stem + "-") and other.endswith(".binary") and full != path
+                    and len(other) == len(os.path.basename(path)) and os.path.isfile(full)):
+                try:
+                    os.remove(full)
+                except OSError:
+                    pass
+    return path
+
+
 def sample_path(name: str, force: bool = False) -> str:
-    """Path of the named sample's MERL file, tabulating it first if needed."""
+    """Path of the named sample's MERL file, tabulating (or decoding) it first if needed."""
     from addon.core.merl import tabulate, write_merl
 
+    if "/" in name:
+        return _measured_path(name, force)
     if name not in CATALOG:
-        raise KeyError(f"unknown sample {name!r}; known: {', '.join(sorted(CATALOG))}")
+        raise KeyError(f"unknown sample {name!r}; known: {', '.join(sorted(CATALOG))}, "
+                       f"and measured SET/NAME (python -m samples --list)")
     folder = cache_dir()
     os.makedirs(folder, exist_ok=True)
     path = os.path.join(folder, f"{name}.binary")

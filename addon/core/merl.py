@@ -55,6 +55,8 @@ class MerlTable:
     rho: np.ndarray
     valid: np.ndarray
     path: str | None = None
+    # A display name when the path does not give one (a material decoded from a weights set).
+    label: str | None = None
 
     def __post_init__(self):
         if self.rho.shape != (3, N_CELLS) or self.valid.shape != (3, N_CELLS):
@@ -62,13 +64,15 @@ class MerlTable:
 
     @property
     def name(self) -> str:
+        if self.label:
+            return self.label
         if not self.path:
             return "material"
         base = os.path.basename(self.path)
         return base[: -len(".binary")] if base.endswith(".binary") else os.path.splitext(base)[0]
 
     def copy(self) -> "MerlTable":
-        return MerlTable(self.rho.copy(), self.valid.copy(), self.path)
+        return MerlTable(self.rho.copy(), self.valid.copy(), self.path, self.label)
 
 
 def read_merl(path) -> MerlTable:
