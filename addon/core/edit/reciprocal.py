@@ -35,11 +35,13 @@ from ..merl import RES_PD, RES_TD, RES_TH, MerlTable, cell_centres
 # Operator columns used by the solve: 1, x, phi, x^2, phi^2 (exponents(4) order: 0, 1, 2, 3, 5).
 _COLS = (0, 1, 2, 3, 5)
 STEPS = 6
+KNOTS = 16
 # Residual units: the SPEC §6 tolerances (log energy, mean in rad, log variance).
 UNITS = np.array([0.02, 0.02, 0.02])
 # Smoothness across theta_d rings (second differences), in the controls' own units.
-SMOOTH = np.array([0.01, 0.01, 0.01])   # log s, q~, log G
-DAMPING = 1e-3
+SMOOTH = np.array([0.05, 0.05, 0.05])   # log s, q~, log G
+DAMPING = 1e-2
+ROBUST = 3.0   # residual (in UNITS) beyond which a view's pull stops growing
 LOG_S_RANGE = (-2.3, 1.2)   # width scale 0.1 .. 3.3
 Q_RANGE = (-0.5, 0.5)
 MAX_STEP = 0.5               # trust region: the largest change of any control in one step
@@ -196,27 +198,53 @@ class SolveReport:
     residual_end: float
 
 
+def knot_basis(n_knots):
+    """(90 rings, K) linear B-spline (hat) basis on K knots evenly spread over theta_d."""
+    if n_knots >= RES_TD:
+        return np.eye(RES_TD)
+    x = np.arange(RES_TD) / (RES_TD - 1) * (n_knots - 1)
+    k = np.arange(n_knots)
+    return np.maximum(0.0, 1.0 - np.abs(x[:, None] - k[None, :]))
+
+
 def solve_controls(transform: Transform, rings: RingSums, goal_alpha, goal_mx, goal_var, weight,
-                   steps=STEPS):
-    """Damped Gauss-Newton on (log s, q~, log G_avg) per ring, on the average channel.
+                   steps=None, start_controls: Controls | None = None, n_knots=None):
+    """Damped Gauss-Newton on (log s, q~, log G_avg), each a hat spline over theta_d, on the
+    average channel, added to ``start_controls`` (per ring).
 
     ``goal_*`` per view (the average channel's targets: energy, mean about the mirror x = theta +
     theta_o, average variance); ``weight`` (V, 3) per residual kind. Returns (Controls, report)."""
-    c = Controls.identity(1)
-    c.log_s[:] = 0.0
-    n = RES_TD
-    reg = np.kron(np.eye(3), _D2) / np.repeat(SMOOTH, 1)[:, None].repeat(n - 2, axis=0)
+    steps = STEPS if steps is None else steps
+    B = knot_basis(KNOTS if n_knots is None else n_knots)
+    K = B.shape[1]
+    base = start_controls or Controls.identity(1)
+    y = np.zeros(3 * K)                                              # knot offsets
+    Bfull = np.kron(np.eye(3), B)                                    # (270, 3K)
+    D2 = _second_difference(K) if K > 2 else np.zeros((0, K))
+    reg = np.kron(np.eye(3), D2) / np.repeat(SMOOTH, len(D2))[:, None]
+    x0 = np.concatenate([base.log_s, base.q, base.log_g[:, 0]])
     start = end = None
-    for it in range(steps):
+    n = RES_TD
+
+    def controls(y):
+        x = x0 + Bfull @ y
+        return Controls(np.clip(x[:n], *LOG_S_RANGE), np.clip(x[n:2 * n], *Q_RANGE), x[2 * n:, None].copy())
+
+    c = controls(y)
+    for _ in range(steps):
         vals, d_logs, d_q = transform.values(c, with_derivatives=True)
         both = rings.sums(np.stack([vals[..., 0].ravel(), d_logs[..., 0].ravel(), d_q[..., 0].ravel()], axis=1))
         Sr, Ss, Sq = both[..., 0], both[..., 1], both[..., 2]
         r, Jg = _residual_jacobian(Sr, Sr, goal_alpha, goal_mx, goal_var, weight)
         _, Js = _residual_jacobian(Sr, Ss, goal_alpha, goal_mx, goal_var, weight)
         _, Jq = _residual_jacobian(Sr, Sq, goal_alpha, goal_mx, goal_var, weight)
-        J = np.concatenate([Js, Jq, Jg], axis=1)                     # (3V, 270)
-        x = np.concatenate([c.log_s, c.q, c.log_g[:, 0]])
-        rr = reg @ x
+        J = np.concatenate([Js @ B, Jq @ B, Jg @ B], axis=1)          # (3V, 3K)
+        # A robust (Cauchy-like) loss: a view whose target is out of reach (a lobe clipped at
+        # the horizon) must not pull every other view off theirs. Smooth in r: continuous.
+        robust = 1.0 / np.sqrt(1.0 + (r / ROBUST) ** 2)
+        r = r * robust
+        J = J * robust[:, None]
+        rr = reg @ y
         cost = float(r @ r + rr @ rr)
         if start is None:
             start = cost
@@ -224,8 +252,8 @@ def solve_controls(transform: Transform, rings: RingSums, goal_alpha, goal_mx, g
         A[np.diag_indices_from(A)] += DAMPING * (np.diag(A) + 1.0)
         step = -np.linalg.solve(A, J.T @ r + reg.T @ rr)
         step *= min(1.0, MAX_STEP / max(float(np.abs(step).max()), 1e-300))  # a uniform scale: continuous
-        x = x + step
-        c = Controls(np.clip(x[:n], *LOG_S_RANGE), np.clip(x[n:2 * n], *Q_RANGE), x[2 * n:, None].copy())
+        y = y + step
+        c = controls(y)
         end = cost
     return c, SolveReport(steps, start, end)
 

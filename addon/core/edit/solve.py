@@ -96,7 +96,15 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, val
         weight = weight * np.where(reachable.all(axis=1), 1.0, 0.2)[:, None]
     goal_e = np.maximum(goal_e, 1e-12 * max(float(goal_e.max(initial=0.0)), 1e-300))
     avg = R.Transform(R.spec_cube(values[:, 3:4]), ring_var)
-    controls, report = R.solve_controls(avg, rings, goal_e, goal_mx, goal_v, weight)
+    # Start from the per-view answer read off at theta_d = theta_o (where each view's lobe is):
+    # the width by the variance ratio, the gain by the energy ratio (1/s^2 already keeps it).
+    measured_e = np.nan_to_num(np.asarray(p["alpha"], float))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ls0 = np.nan_to_num(0.5 * np.log(goal_v / np.maximum(measured_var, 1e-300)))
+        lg0 = np.nan_to_num(np.log(goal_e / np.maximum(measured_e, 1e-300)))
+    start = R.Controls(np.clip(np.interp(ring_centres, theta, ls0), *R.LOG_S_RANGE), np.zeros(RES_TD),
+                       np.clip(np.interp(ring_centres, theta, lg0), -5.0, 5.0)[:, None])
+    controls, report = R.solve_controls(avg, rings, goal_e, goal_mx, goal_v, weight, start_controls=start)
     del avg
     rgb = R.Transform(R.spec_cube(values[:, :3]), ring_var)
     controls.log_g = R.channel_gains(rgb, rings, controls, vt.alpha, weight[:, 0])
