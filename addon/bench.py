@@ -435,7 +435,7 @@ def _edit_requests(fit, region):
     for d in (+0.05, -0.05):
         if np.isfinite(lo):
             m = float(np.clip(mu + d, lo, hi))
-            if abs(m - mu) > 1e-3:
+            if abs(m - mu) > 1e-3 and all(abs(m - o[1].mu_slope) > 1e-6 for o in out if o[1].mu_slope is not None):
                 out.append((f"μ̃ {m - mu:+.3f}", EditTargets(mu_slope=m)))
     return out
 

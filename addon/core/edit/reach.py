@@ -53,19 +53,22 @@ def counted_views(theta_o, alpha):
 
 
 def view_reachable(theta_o, mean, var_tt, var_pp, measured_mean, measured_var):
-    """(V, C) bool: whether each view's target (mean, variances) can be held by a reciprocal table."""
+    """(V, C) bool: whether each view's target (mean, variances) can be held by a reciprocal table.
+
+    ``measured_var`` is the measured average variance (sigma_tt + sigma_pp) / 2, the quantity
+    compared (a lobe the table already holds stays in reach, even below the cell floor)."""
     theta_o = np.asarray(theta_o, float)[:, None] if np.ndim(theta_o) == 1 else np.asarray(theta_o, float)
     mean, var_tt, var_pp = (np.nan_to_num(np.asarray(a, float)) for a in (mean, var_tt, var_pp))
     mean, var_tt, var_pp = np.broadcast_arrays(mean, var_tt, var_pp)
     floor = cell_variance_floor(theta_o, mean)
+    measured_var = np.nan_to_num(np.asarray(measured_var, float))
+    avg = 0.5 * (var_tt + var_pp)
     # Measured slices are heavier-tailed than Gaussians: one may already be wider than the
     # truncated family's limit, and keeping that width is always in reach.
-    cap = np.maximum(variance_cap(mean), np.nan_to_num(np.asarray(measured_var, float)) * (1 + 1e-9))
-    wide = np.sqrt(np.maximum(np.nan_to_num(np.asarray(measured_var, float)), 0.0))
+    cap = np.maximum(variance_cap(mean), measured_var * (1 + 1e-9))
     shift = np.abs(mean - np.nan_to_num(np.asarray(measured_mean, float)))
-    width = np.maximum(np.sqrt(np.maximum(0.5 * (var_tt + var_pp), 0.0)), wide)
-    return ((var_tt >= floor) & (var_pp >= floor) & (var_tt <= cap) & (var_pp <= LAMBERT_VARIANCE)
-            & (shift <= MAX_SHIFT_SIGMAS * width + 1e-12))
+    width = np.sqrt(np.maximum(np.maximum(avg, measured_var), 0.0))
+    return (avg >= np.minimum(floor, measured_var)) & (avg <= cap) & (shift <= MAX_SHIFT_SIGMAS * width + 1e-12)
 
 
 @dataclass

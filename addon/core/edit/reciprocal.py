@@ -34,7 +34,7 @@ from ..merl import RES_PD, RES_TD, RES_TH, MerlTable, cell_centres
 
 # Operator columns used by the solve: 1, x, phi, x^2, phi^2 (exponents(4) order: 0, 1, 2, 3, 5).
 _COLS = (0, 1, 2, 3, 5)
-STEPS = 6
+STEPS = 8
 KNOTS = 16
 # Residual units: the SPEC §6 tolerances (log energy, mean in rad, log variance).
 UNITS = np.array([0.02, 0.02, 0.02])
@@ -43,7 +43,7 @@ SMOOTH = np.array([0.05, 0.05, 0.05])   # log s, q~, log G
 DAMPING = 1e-2
 ROBUST = 3.0   # residual (in UNITS) beyond which a view's pull stops growing
 LOG_S_RANGE = (-2.3, 1.2)   # width scale 0.1 .. 3.3
-Q_RANGE = (-0.5, 0.5)
+Q_RANGE = (-4.0, 4.0)
 MAX_STEP = 0.5               # trust region: the largest change of any control in one step
 TILT_MAX = 3.0               # the tilt may raise a cell by at most e^3 (cells at the horizon)
 
@@ -239,9 +239,10 @@ def solve_controls(transform: Transform, rings: RingSums, goal_alpha, goal_mx, g
         _, Js = _residual_jacobian(Sr, Ss, goal_alpha, goal_mx, goal_var, weight)
         _, Jq = _residual_jacobian(Sr, Sq, goal_alpha, goal_mx, goal_var, weight)
         J = np.concatenate([Js @ B, Jq @ B, Jg @ B], axis=1)          # (3V, 3K)
-        # A robust (Cauchy-like) loss: a view whose target is out of reach (a lobe clipped at
-        # the horizon) must not pull every other view off theirs. Smooth in r: continuous.
-        robust = 1.0 / np.sqrt(1.0 + (r / ROBUST) ** 2)
+        # A robust (pseudo-Huber) loss: a view whose target is out of reach (a lobe clipped at
+        # the horizon) must not pull every other view off theirs, yet a view far off still pulls
+        # (its residual grows like sqrt|r|; a Cauchy loss let such views go). Smooth in r.
+        robust = (1.0 + (r / ROBUST) ** 2) ** -0.25
         r = r * robust
         J = J * robust[:, None]
         rr = reg @ y
