@@ -14,10 +14,11 @@ runs the same.
 import math
 
 import numpy as np
-from scipy.special import ndtr
+from scipy.special import log_ndtr, ndtr
 
 HALF_PI = 0.5 * math.pi
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
+_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 # Nearer the limit the Gaussian's width runs away (s ~ 18 at 0.999 and the centre; at the edges
 # m reaches -1e3, where the closed forms underflow): 0.995 converges everywhere in 40 steps.
 CAP_FRACTION = 0.995
@@ -84,16 +85,30 @@ def mass(m, s):
     return np.maximum(ndtr(hi) - ndtr(lo), 1e-300)
 
 
+def log_mass(a, b):
+    """log(Phi(b) - Phi(a)) for a < b, accurate far in either tail (a lobe centred well beyond
+    the horizon has all its truncated mass in a sliver of the far tail)."""
+    flip = a > 0  # Phi(b) - Phi(a) = Phi(-a) - Phi(-b): keep the difference on the left tail
+    lo, hi = np.where(flip, -b, a), np.where(flip, -a, b)
+    l_hi, l_lo = log_ndtr(hi), log_ndtr(lo)
+    with np.errstate(divide="ignore"):
+        return l_hi + np.log1p(-np.exp(np.minimum(l_lo - l_hi, 0.0)))
+
+
 def z_moments(m, s):
-    """E[z], central c2, c3, c4 and raw E[z^3] of z = (x - m)/s, x ~ N(m, s^2) on [-pi/2, pi/2]."""
+    """E[z], central c2, c3, c4 and raw E[z^3] of z = (x - m)/s, x ~ N(m, s^2) on [-pi/2, pi/2].
+
+    The density ratios phi(a)/Z, phi(b)/Z are formed in logs: tail-safe."""
+    m = np.asarray(m, float)
+    s = np.asarray(s, float)
     a, b = (-HALF_PI - m) / s, (HALF_PI - m) / s
-    z = mass(m, s)
-    pa = np.exp(-0.5 * a * a) / _SQRT_2PI
-    pb = np.exp(-0.5 * b * b) / _SQRT_2PI
-    m1 = (pa - pb) / z
-    m2 = 1.0 + (a * pa - b * pb) / z
-    m3 = 2.0 * m1 + (a * a * pa - b * b * pb) / z
-    m4 = 3.0 * m2 + (a ** 3 * pa - b ** 3 * pb) / z
+    log_z = log_mass(a, b)
+    pa = np.exp(-0.5 * a * a - _LOG_SQRT_2PI - log_z)
+    pb = np.exp(-0.5 * b * b - _LOG_SQRT_2PI - log_z)
+    m1 = pa - pb
+    m2 = 1.0 + (a * pa - b * pb)
+    m3 = 2.0 * m1 + (a * a * pa - b * b * pb)
+    m4 = 3.0 * m2 + (a ** 3 * pa - b ** 3 * pb)
     c2 = np.maximum(m2 - m1 * m1, 1e-300)
     c3 = m3 - 3.0 * m1 * m2 + 2.0 * m1 ** 3
     c4 = m4 - 4.0 * m1 * m3 + 6.0 * m1 * m1 * m2 - 3.0 * m1 ** 4
@@ -105,7 +120,12 @@ def moments(m, s):
     m = np.asarray(m, float)
     s = np.asarray(s, float)
     mu, c2, _, _, _ = z_moments(m, s)
-    return m + s * mu, np.maximum(s * s * c2, 1e-300)
+    mean = np.clip(m + s * mu, -HALF_PI, HALF_PI)
+    var = s * s * c2
+    # The closed form cancels when all the mass sits in a sliver at one edge; there the law is
+    # exponential to first order, and its variance is its squared mean distance from that edge.
+    d = np.minimum(np.abs(HALF_PI - mean), np.abs(mean + HALF_PI))
+    return mean, np.where(np.isfinite(var) & (var > 1e-300), var, np.maximum(d * d, 1e-300))
 
 
 def reachable_variance(mean, var):

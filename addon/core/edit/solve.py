@@ -133,6 +133,25 @@ def directional_albedo(table: MerlTable, views=None) -> np.ndarray:
     return out
 
 
+ENERGY_WARNING = 0.2   # warn when a view's re-measured energy is this far off its target
+
+
+def _energy_note(new_prof, vt):
+    """A warning naming the views (up to 80 deg, >= 1e-6 of the peak) whose energy is > 20 % off."""
+    theta = np.asarray(vt.theta_o, float)
+    got = np.stack([np.nan_to_num(np.asarray(new_prof[c]["alpha"], float)) for c in "rgb"], axis=1)
+    want = vt.alpha
+    use = (theta[:, None] <= math.radians(80.0) + 1e-9) & (want > 1e-6 * max(float(want.max(initial=0.0)), 1e-300))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = np.where(use, np.abs(got / want - 1.0), 0.0)
+    bad = (off > ENERGY_WARNING).any(axis=1)
+    if not bad.any():
+        return None
+    deg = np.degrees(theta[bad])
+    return (f"energy not held at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): off by up to "
+            f"{100 * off.max():.0f} %")
+
+
 def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, **extra):
     albedo = directional_albedo(out).max(axis=0)
     if np.any(albedo > 1.0):
@@ -148,6 +167,9 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, **extra):
         achieved_mu, achieved_s2 = f["mu_slope"], f["sigma2"]
         if vt is not None:
             fid = measure(new_prof, vt, prof)
+            note = _energy_note(new_prof, vt)
+            if note:
+                warnings.append(note)
         timings["remeasure"] = time.perf_counter() - t0
     return EditResult(out, mu_t, s2_t, achieved_mu, achieved_s2, albedo, warnings, new_prof, fid,
                       timings=timings, **extra)
