@@ -124,8 +124,9 @@ def test_random_slider_sequences_always_resolve_to_valid_targets_or_a_clear_erro
         assert math.isfinite(mu) and math.isfinite(s2)
         assert MIN_SIGMA2 <= s2 <= LAMBERT_VARIANCE
         if t.mu_slope is not None:
-            assert -1.0 <= mu <= 0.0
-            assert mu == min(max(t.mu_slope, -1.0), 0.0)
+            lo, hi = min(-1.0, fit["mu_slope"]), max(0.0, fit["mu_slope"])  # the range holds the fit
+            assert lo <= mu <= hi
+            assert mu == min(max(t.mu_slope, lo), hi)
         if t.sigma2 is not None and not t.lock:
             assert s2 == pytest.approx(min(max(t.sigma2, MIN_SIGMA2), LAMBERT_VARIANCE), rel=1e-12)
         energy = target_energy(prof, fit, t)

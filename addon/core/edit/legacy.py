@@ -226,11 +226,14 @@ def _trunc_moments(m, s):
 
 def solve_truncated(mean_t, var_t, iters=40):
     """(m, s, ok) of the Gaussian whose truncation has this mean and variance, by the one rule of
-    ``core.truncated`` (the mean kept, the variance capped); ok where nothing was capped."""
+    ``core.truncated`` (the mean kept, the variance capped); ok where the targets were met."""
     mean_t = np.asarray(mean_t, float)
     var_t = np.broadcast_to(np.asarray(var_t, float), mean_t.shape)
     m, s, used = _truncated.solve(mean_t, var_t, iters)
-    return m, s, used >= np.maximum(var_t, 1e-14)
+    mt, vt = _truncated.moments(m, s)
+    # Reached: nothing capped, and the widths' bounds (s >= 1e-4) did not stop it.
+    ok = (used >= np.maximum(var_t, 1e-14)) & (np.abs(mt - mean_t) < 1e-6) & (np.abs(vt / used - 1) < 1e-4)
+    return m, s, ok
 
 
 def _reachable_truncated(mean_t, var_t):
