@@ -499,7 +499,7 @@ def bench_edit(quick):
                         f"{'yes' if f['meets'] else 'no'} | {'yes' if rt else 'no'} | "
                         f"{'—' if not np.isfinite(syn) else f'{syn:.2f} s'} | {apply_s:.2f} s |"
                         + (" clamped" if res.clamped else ""))
-            if kind == "analytic" and not t.is_energy_only():
+            if kind == "analytic" and not t.is_energy_only() and not os.environ.get("BRDF_MOMENTS_BENCH_NO_LEGACY"):
                 # The old pipeline on the same request, measured with the same stick.
                 t0 = time.perf_counter()
                 old = legacy.edit(table, t, prof, fit, remeasure=False)

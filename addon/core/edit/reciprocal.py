@@ -34,13 +34,13 @@ from ..merl import RES_PD, RES_TD, RES_TH, MerlTable, cell_centres
 
 # Operator columns used by the solve: 1, x, phi, x^2, phi^2 (exponents(4) order: 0, 1, 2, 3, 5).
 _COLS = (0, 1, 2, 3, 5)
-STEPS = 8
+STEPS = 12
 KNOTS = 16
 # Residual units: the SPEC §6 tolerances (log energy, mean in rad, log variance).
 UNITS = np.array([0.02, 0.02, 0.02])
 # Smoothness across theta_d rings (second differences), in the controls' own units.
 SMOOTH = np.array([0.05, 0.05, 0.05])   # log s, q~, log G
-DAMPING = 1e-2
+DAMPING = 0.3
 ROBUST = 3.0   # residual (in UNITS) beyond which a view's pull stops growing
 LOG_S_RANGE = (-2.3, 1.2)   # width scale 0.1 .. 3.3
 Q_RANGE = (-4.0, 4.0)
@@ -85,23 +85,38 @@ class Transform:
         self.ih = np.arange(RES_TH, dtype=float) + 0.5
 
     def _interp(self, log_s):
-        """Values at theta_h / s per ring: (90, 90, 180, C) and d/d(log s) of the lookup."""
+        """Values at theta_h / s per ring: (90, 90, 180, C) and d/d(log s) of the lookup.
+
+        Catmull-Rom along the ring index, so that the lookup and its derivative are continuous in
+        s (the Gauss-Newton steps use the derivative: a piecewise-linear lookup made the solved
+        table jump as the sliders moved). Ring i's centre is u = i + 0.5 with u = sqrt(theta_h /
+        (pi/2)) * 90; below the first centre the data are mirrored about theta_h = 0 (u = 0), where
+        a lobe is even in the signed ring coordinate. At s = 1 the lookup returns the values."""
         s = np.exp(log_s)
-        # Ring coordinate u = sqrt(theta_h / (pi/2)) * 90; theta_h / s has u / sqrt(s).
-        p = self.ih[:, None] / np.sqrt(s)[None, :] - 0.5            # (ih, id)
+        p = self.ih[:, None] / np.sqrt(s)[None, :] - 0.5            # (ih, id) fractional ring
         dp = -0.5 * (p + 0.5)                                        # d p / d log s
-        beyond = p > RES_TH - 0.5
-        pc = np.clip(p, 0.0, RES_TH - 1.0)
-        i0 = np.minimum(np.floor(pc).astype(np.int64), RES_TH - 2)
-        f = pc - i0
+        beyond = p > RES_TH - 1.0
+        pc = np.clip(p, -0.5, RES_TH - 1.0)
+        i0 = np.floor(pc).astype(np.int64)
+        f = (pc - i0)[:, :, None, None]
         idx = np.arange(RES_TD)[None, :]
-        a = self.spec[i0, idx]                                       # (ih, id, 180, C)
-        b = self.spec[i0 + 1, idx]
-        slope = b - a
-        val = a + f[:, :, None, None] * slope
-        moving = (p > 0.0) & ~beyond
-        dval = np.where(moving[:, :, None, None], slope * dp[:, :, None, None], 0.0)
+
+        def ring(j):
+            j = np.where(j < 0, -1 - j, np.minimum(j, RES_TH - 1))
+            return self.spec[j, idx]
+
+        v0, v1, v2, v3 = ring(i0 - 1), ring(i0), ring(i0 + 1), ring(i0 + 2)
+        c1 = v2 - v0
+        c2 = 2.0 * v0 - 5.0 * v1 + 4.0 * v2 - v3
+        c3 = -v0 + 3.0 * v1 - 3.0 * v2 + v3
+        val = v1 + 0.5 * f * (c1 + f * (c2 + f * c3))
+        dval = 0.5 * (c1 + f * (2.0 * c2 + 3.0 * f * c3)) * dp[:, :, None, None]
+        # Overshoot below zero is cut (a reflectance); the cut is continuous.
+        neg = val < 0.0
+        val[neg] = 0.0
+        dval[neg] = 0.0
         val[beyond] = 0.0
+        dval[beyond] = 0.0
         return val, dval
 
     def values(self, c: Controls, with_derivatives=False):

@@ -91,9 +91,8 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, val
     ring_var = np.interp(ring_centres, theta, measured_var)
     goal_e, goal_mx, goal_v = _avg_goals(prof, fit, vt)
     weight = _weights(theta, goal_e)
-    if reachable is not None:
-        # Views whose target is out of reach pull less: they must not drag the rings of the others.
-        weight = weight * np.where(reachable.all(axis=1), 1.0, 0.2)[:, None]
+    # (Out-of-reach views are not down-weighted by the reach test: a yes/no weight would make the
+    # map from sliders to tables jump as a view crosses the boundary. The robust loss tames them.)
     goal_e = np.maximum(goal_e, 1e-12 * max(float(goal_e.max(initial=0.0)), 1e-300))
     avg = R.Transform(R.spec_cube(values[:, 3:4]), ring_var)
     # Start from the per-view answer read off at theta_d = theta_o (where each view's lobe is):
@@ -220,7 +219,7 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     tell(1, 3)
     vt = view_targets(prof, fit, targets, mu_t, s2_t)
     t_reg = time.perf_counter() - t0
-    out, controls, report = synthesize(table, prof, fit, vt, reachable=_view_reach(prof, vt))
+    out, controls, report = synthesize(table, prof, fit, vt)
     t_syn = time.perf_counter() - t0
     tell(2, 3)
     res = _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt, region=region, clamped=clamped,
