@@ -36,10 +36,16 @@ def _cache_dir():
 
 
 def _source_hash(*modules):
+    """Of the modules' sources; a package counts with every .py file in it (edit is one)."""
     h = hashlib.sha256()
     for m in modules:
-        with open(m.__file__, "rb") as fh:
-            h.update(fh.read())
+        files = [m.__file__]
+        if os.path.basename(m.__file__) == "__init__.py":
+            folder = os.path.dirname(m.__file__)
+            files = [os.path.join(folder, f) for f in sorted(os.listdir(folder)) if f.endswith(".py")]
+        for f in files:
+            with open(f, "rb") as fh:
+                h.update(fh.read())
     return h.hexdigest()[:12]
 
 

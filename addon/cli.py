@@ -200,7 +200,7 @@ def cmd_edit(args):
     colour = args.alpha or (1.0, 1.0, 1.0)
     targets = EditTargets(strength=args.alpha_scale if args.alpha_scale is not None else 1.0, colour=colour,
                           grazing_boost=args.grazing_boost, mu_slope=args.mu, sigma2=args.sigma2, mode=args.mode)
-    bar, shown = _progress("edit: correction rounds"), [0, 0]
+    bar, shown = _progress("edit: synthesis"), [0, 0]
 
     def on_round(done, total):
         shown[:] = [done, total]
@@ -222,6 +222,20 @@ def cmd_edit(args):
     print(f"target   mean slope {res.target_mu_slope:+.4f}  variance {res.target_sigma2:.5f}")
     print(f"achieved mean slope {mu}  variance {s2}")
     print("largest directional albedo (r, g, b): " + ", ".join(f"{v:.4f}" for v in res.max_albedo))
+    if res.region is not None:
+        lo, hi = res.region._range_at(res.target_sigma2)
+        print(f"reachable: variance {res.region.sigma2_min:.4g} .. {res.region.sigma2_max:.4g}; "
+              f"mean slope {lo:+.3f} .. {hi:+.3f} at variance {res.target_sigma2:.4g}"
+              + (f" (request {res.requested[0]:+.4f}, {res.requested[1]:.5f} clamped)" if res.clamped else ""))
+    if res.fidelity is not None:
+        # Per view (SPEC §6): every view 5-80 deg holding >= 5 % of the peak energy, re-measured.
+        for ch, c in res.fidelity.channels.items():
+            print(f"per view {ch}: energy {100 * c.energy:.1f} %, variance ratio {100 * c.variance_median:.1f} % "
+                  f"median / {100 * c.variance_worst:.1f} % worst, mean {c.mean:.3f} rad, skew/kurt "
+                  f"{'—' if c.shape != c.shape else f'{100 * c.shape:.0f} %'} ({c.views} views"
+                  + (f", {len(c.excluded_deg)} out of reach" if c.excluded_deg else "") + ")")
+    if res.timings:
+        print("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in res.timings.items()))
     for w in res.warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"wrote {args.out}")

@@ -2,6 +2,8 @@
 
 import math
 
+from addon.core.truncated import CAP_FRACTION, variance_cap
+
 import numpy as np
 import pytest
 
@@ -94,12 +96,20 @@ def test_truncated_params_round_trip_and_uniform_limit():
     mean, var = truncnorm_moments(m0[keep], s0[keep])
     m, s = truncated_params(mean, var)
     mt, vt = truncnorm_moments(m, s)
-    assert np.all(np.abs(mt - mean) <= 1e-6 * np.sqrt(var))
-    np.testing.assert_allclose(vt, var, rtol=1e-6)
-    # pi^2/12 is the uniform: the widest Gaussian (s = MAX_S) is within 0.3 % of it
+    assert np.all(np.abs(mt - mean) <= 1e-6 * np.sqrt(var))  # the mean is always kept
+    # Lobes wider than the rule's cap (99.5 % of the truncated-exponential limit) are capped.
+    cap = CAP_FRACTION * variance_cap(mean)
+    inside = var <= cap
+    assert inside.mean() > 0.9
+    np.testing.assert_allclose(vt[inside], var[inside], rtol=1e-6)
+    np.testing.assert_allclose(vt[~inside], cap[~inside], rtol=1e-6)
+    # pi^2/12 is the uniform, which no truncated Gaussian reaches: the one rule (core.truncated)
+    # caps it at 99.5 % of it, a lobe within 2 % of uniform
     m, s = truncated_params(np.zeros(1), np.array([math.pi ** 2 / 12]))
+    _, vt = truncnorm_moments(m, s)
+    np.testing.assert_allclose(vt, 0.995 * math.pi ** 2 / 12, rtol=1e-6)
     x = np.linspace(-1.5, 1.5, 7)
-    np.testing.assert_allclose(truncnorm_pdf(x, m, s), 1 / math.pi, rtol=3e-3)
+    np.testing.assert_allclose(truncnorm_pdf(x, m, s), 1 / math.pi, rtol=2e-2)
 
 
 def test_truncated_gaussian_sampler_has_its_density():
@@ -160,13 +170,16 @@ def test_lambertian_bake_and_reference_match_the_closed_form(lambert, lambert_wh
 def test_moment_model_uses_the_solid_angle_measure():
     """A lobe that is the uniform on the (theta, phi) square with alpha = 0.8 pi is the
     Lambertian 0.8/pi: the estimator alpha mean(L cos t cos^2 p) must give 0.8 L exactly
-    (with cos t cos p, i.e. the moment measure mistaken for solid angle, it gives 1.02 L)."""
+    (with cos t cos p, i.e. the moment measure mistaken for solid angle, it gives 1.02 L).
+    The variance pi^2/12 is capped by the one truncated-Gaussian rule (core.truncated) at 99.5 %
+    of the uniform's, a lobe within 2 % of it that brightens the centre of the sphere by 0.65 %
+    (measured); the measure mistake stays three times larger than the tolerance."""
     a = 0.8 * math.pi
     model = ModelBRDF(MomentParams((a,) * 3, (a,) * 3, (0.0,) * 3, 0.8, 1.2, 0.0, math.pi ** 2 / 12))
     env = Environment.constant((1.0, 1.0, 1.0))
     rgb, cov = bake_sphere(model, env, 24, lobe_samples=256, seed=0)
     inner = interior_texels(24)
-    assert rgb[inner, 0].mean() == pytest.approx(0.8, rel=5e-3)
+    assert rgb[inner, 0].mean() == pytest.approx(0.8, rel=8e-3)
 
 
 def test_bake_agrees_with_the_reference_on_a_glossy_table(sample_table):

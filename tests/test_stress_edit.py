@@ -14,8 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from _stress import assert_finite_tree, assert_profiles_sane
-from addon.core.edit import (MIN_SIGMA2, EditTargets, _trunc_moments, _truncated_gauss, edit, resolve_targets,
-                             solve_truncated, target_energy)
+from addon.core.edit import MIN_SIGMA2, EditTargets, edit, resolve_targets, target_energy
+from addon.core.edit.legacy import _trunc_moments, _truncated_gauss, solve_truncated
 from addon.core.fits import LAMBERT_VARIANCE, fit_material
 from addon.core.integrate import default_views
 from addon.core.merl import MAX_REFLECTANCE, read_merl, write_merl
@@ -35,15 +35,17 @@ def glossy(sample_table):
 
 # --- clamping ------------------------------------------------------------------------------
 
+# "LO" is the slider's lower end: -1, or the fitted slope where that is below -1 (SPEC §3: the
+# ranges hold every fitted value); "LO-" is just below it.
 LIMIT_CASES = [
     # (mu, sigma2, expected mu, expected sigma2, clamped?)
-    (-1.0, LAMBERT_VARIANCE, -1.0, LAMBERT_VARIANCE, False),
+    ("LO", LAMBERT_VARIANCE, "LO", LAMBERT_VARIANCE, False),
     (0.0, MIN_SIGMA2, 0.0, MIN_SIGMA2, False),
-    (-1.0 - 1e-12, 0.1, -1.0, 0.1, True),
+    ("LO-", 0.1, "LO", 0.1, True),
     (1e-12, 0.1, 0.0, 0.1, True),
-    (-1.5, 0.0, -1.0, MIN_SIGMA2, True),
+    (-1.5, 0.0, "LO", MIN_SIGMA2, True),
     (0.5, -1.0, 0.0, MIN_SIGMA2, True),
-    (-1e300, 1e300, -1.0, LAMBERT_VARIANCE, True),
+    (-1e300, 1e300, "LO", LAMBERT_VARIANCE, True),
     (1e300, 5e-324, 0.0, MIN_SIGMA2, True),
     (-0.5, LAMBERT_VARIANCE * (1 + 1e-12), -0.5, LAMBERT_VARIANCE, True),
     (-0.5, 10.0, -0.5, LAMBERT_VARIANCE, True),
@@ -54,6 +56,9 @@ LIMIT_CASES = [
 def test_sliders_at_and_beyond_their_limits_are_clamped_with_a_warning(glossy, stress_log, mu, s2, want_mu,
                                                                        want_s2, clamped):
     _, _, fit = glossy
+    lo = min(-1.0, fit["mu_slope"])
+    sym = {"LO": lo, "LO-": lo - 1e-12 * max(1.0, abs(lo))}
+    mu, want_mu = sym.get(mu, mu), sym.get(want_mu, want_mu)
     got_mu, got_s2, warnings = resolve_targets(EditTargets(mu_slope=mu, sigma2=s2), fit)
     assert got_mu == want_mu and got_s2 == pytest.approx(want_s2, rel=1e-12)
     assert bool(warnings) == clamped and all("clamped" in w for w in warnings)
@@ -119,8 +124,9 @@ def test_random_slider_sequences_always_resolve_to_valid_targets_or_a_clear_erro
         assert math.isfinite(mu) and math.isfinite(s2)
         assert MIN_SIGMA2 <= s2 <= LAMBERT_VARIANCE
         if t.mu_slope is not None:
-            assert -1.0 <= mu <= 0.0
-            assert mu == min(max(t.mu_slope, -1.0), 0.0)
+            lo, hi = min(-1.0, fit["mu_slope"]), max(0.0, fit["mu_slope"])  # the range holds the fit
+            assert lo <= mu <= hi
+            assert mu == min(max(t.mu_slope, lo), hi)
         if t.sigma2 is not None and not t.lock:
             assert s2 == pytest.approx(min(max(t.sigma2, MIN_SIGMA2), LAMBERT_VARIANCE), rel=1e-12)
         energy = target_energy(prof, fit, t)

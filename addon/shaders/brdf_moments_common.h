@@ -11,6 +11,7 @@
 #define BM_SQRT2 1.4142135623730951
 #define BM_SQRT_2PI 2.5066282746310002
 #define BM_MAX_S 20.0
+#define BM_CAP_FRACTION 0.995
 
 float bm_cdf(float x) { return 0.5 * erfc(-x / BM_SQRT2); }
 
@@ -90,12 +91,35 @@ void bm_z_moments(float m, float s, output float mu, output float c2, output flo
     c4 = m4 - 4.0 * m1 * m3 + 6.0 * m1 * m1 * m2 - 3.0 * m1 * m1 * m1 * m1;
 }
 
-// (m, s) of the Gaussian whose truncation to [-pi/2, pi/2] has this mean and variance: the
-// engine's lobe.truncated_params (Newton in (m, log s) on the scaled residuals, exact
-// Jacobian, step halving; s in [1e-4, BM_MAX_S]).
-void bm_truncated_params(float mean, float var_in, output float m, output float s)
+// The largest variance a truncated Gaussian with this mean approaches: the truncated
+// exponential's, 1/u^2 - 1/sinh(u)^2 (times h^2) with coth(u) - 1/u = mean / h (bisection).
+// core/truncated.py variance_cap.
+float bm_variance_cap(float mean)
 {
-    float var = max(var_in, 1e-14);
+    float mu = clamp(mean / BM_HALF_PI, -1.0, 1.0);
+    if (abs(mu) >= 1.0) return 0.0;
+    float lo = -1e4, hi = 1e4;
+    for (int i = 0; i < 60; i++) {
+        float u = 0.5 * (lo + hi);
+        float mean_u = abs(u) < 1e-3 ? u / 3.0 - u * u * u / 45.0 : 1.0 / tanh(u) - 1.0 / u;
+        if (mean_u < mu) lo = u; else hi = u;
+    }
+    float u = 0.5 * (lo + hi);
+    float v;
+    if (abs(u) < 1e-2) v = 1.0 / 3.0 - u * u / 15.0 + 2.0 * u * u * u * u / 189.0;
+    else if (abs(u) > 80.0) v = 1.0 / (u * u);
+    else { float sh = sinh(u); v = 1.0 / (u * u) - 1.0 / (sh * sh); }
+    return max(v, 0.0) * BM_HALF_PI * BM_HALF_PI;
+}
+
+// (m, s) of the Gaussian whose truncation to [-pi/2, pi/2] has this mean and variance, by the
+// engine's one rule (core/truncated.py solve): the mean kept, the variance capped at
+// BM_CAP_FRACTION of bm_variance_cap; then Newton in (m, log s) on the scaled residuals, exact
+// Jacobian, step halving; s in [1e-4, BM_MAX_S], m steps bounded by 0.5 + 4 s.
+void bm_truncated_params(float mean_in, float var_in, output float m, output float s)
+{
+    float mean = clamp(mean_in, -BM_HALF_PI * 0.9999999, BM_HALF_PI * 0.9999999);
+    float var = max(min(var_in, BM_CAP_FRACTION * bm_variance_cap(mean)), 1e-14);
     float sd = sqrt(var);
     float lo = log(1e-4), hi = log(BM_MAX_S);
     float ls = clamp(log(sd), lo, hi);
@@ -104,7 +128,7 @@ void bm_truncated_params(float mean, float var_in, output float m, output float 
     float mu, c2, c3, c4, m3;
     bm_z_moments(m, s, mu, c2, c3, c4, m3);
     float r1 = (m + s * mu - mean) / sd, r2 = log(s * s * c2 / var);
-    for (int it = 0; it < 20; it++) {
+    for (int it = 0; it < 40; it++) {
         float norm = r1 * r1 + r2 * r2;
         if (norm < 1e-12) break;
         float j11 = c2 / sd, j12 = s * (m3 - mu * (c2 + mu * mu)) / sd;
@@ -118,17 +142,17 @@ void bm_truncated_params(float mean, float var_in, output float m, output float 
             dm = -r1 / max(j11, 1e-30);
             dl = 0.0;
         }
-        dm = clamp(dm, -0.5, 0.5);
+        dm = clamp(dm, -0.5 - 4.0 * s, 0.5 + 4.0 * s);
         dl = clamp(dl, -1.0, 1.0);
         float step = 1.0;
-        for (int h = 0; h < 5; h++) {
-            float nm = clamp(m + step * dm, -2.0 * BM_PI, 2.0 * BM_PI);
+        for (int h = 0; h < 6; h++) {
+            float nm = clamp(m + step * dm, -1e4, 1e4);
             float nl = clamp(ls + step * dl, lo, hi);
             float ns = exp(nl);
             float nmu, nc2, nc3, nc4, nm3;
             bm_z_moments(nm, ns, nmu, nc2, nc3, nc4, nm3);
             float q1 = (nm + ns * nmu - mean) / sd, q2 = log(ns * ns * nc2 / var);
-            if (q1 * q1 + q2 * q2 < norm || h == 4) {
+            if (q1 * q1 + q2 * q2 < norm || h == 5) {
                 m = nm; ls = nl; s = ns;
                 mu = nmu; c2 = nc2; c3 = nc3; c4 = nc4; m3 = nm3;
                 r1 = q1; r2 = q2;

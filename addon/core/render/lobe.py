@@ -19,12 +19,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import ndtr, ndtri
 
+from .. import truncated as _truncated
+
 HALF_PI = 0.5 * math.pi
 LAMBERT_VARIANCE = math.pi ** 2 / 12
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 # Widest Gaussian used: within 0.3 % of uniform on the interval, and float32 (the OSL
 # shader) still resolves its truncated variance. The Lambertian limit is reached here.
-MAX_S = 20.0
+MAX_S = _truncated.MAX_S
 
 
 # --- truncated Gaussians on [-pi/2, pi/2] ---------------------------------------------------
@@ -66,65 +68,12 @@ def truncnorm_sample(m, s, u):
     return np.clip(x, -HALF_PI, HALF_PI)
 
 
-def truncated_params(mean, var, iters=20):
-    """(m, s) of the Gaussian whose truncation to [-pi/2, pi/2] has this mean and variance.
-
-    The model of SPEC §3 (Eq. 7-8, and model-mode editing) sets the *truncated* moments to
-    the targets. Newton's method in (m, log s) on the scaled residuals ((mt - mean)/sd,
-    log(vt/var)), with the exact Jacobian (for an exponential family the derivatives of the
-    moments are covariances, here of z = (x - m)/s) and step halving when a step does not
-    reduce the residual. s stays in [1e-4, MAX_S], so a target no truncated Gaussian reaches
-    (a wide lobe at the horizon; the uniform pi^2/12) ends at the nearest one. The OSL
-    shaders run the same iteration."""
-    mean = np.asarray(mean, float)
-    var = np.maximum(np.broadcast_to(np.asarray(var, float), mean.shape), 1e-14)
-    sd = np.sqrt(var)
-    m = mean.copy()
-    ls = np.log(np.clip(sd, 1e-4, MAX_S))
-    lo, hi = math.log(1e-4), math.log(MAX_S)
-
-    def residual(m, ls):
-        s = np.exp(ls)
-        mu, c2, c3, c4, m3 = _z_moments(m, s)
-        r1 = (m + s * mu - mean) / sd
-        r2 = np.log(s * s * c2 / var)
-        return r1, r2, (s, mu, c2, c3, c4, m3)
-
-    r1, r2, st = residual(m, ls)
-    for _ in range(iters):
-        s, mu, c2, c3, c4, m3 = st
-        j11, j12 = c2 / sd, s * (m3 - mu * (c2 + mu * mu)) / sd
-        j21, j22 = c3 / (s * c2), (c4 - c2 * c2 + 2.0 * mu * c3) / c2
-        det = j11 * j22 - j12 * j21
-        ok = np.abs(det) > 1e-300
-        det = np.where(ok, det, 1.0)
-        dm = np.where(ok, -(j22 * r1 - j12 * r2) / det, -r1 / np.maximum(j11, 1e-300))
-        dl = np.where(ok, -(-j21 * r1 + j11 * r2) / det, 0.0)
-        dm = np.clip(dm, -0.5, 0.5)
-        dl = np.clip(dl, -1.0, 1.0)
-        norm = r1 * r1 + r2 * r2
-        step = np.ones_like(m)
-        for _half in range(5):
-            nm = np.clip(m + step * dm, -2.0 * math.pi, 2.0 * math.pi)
-            nl = np.clip(ls + step * dl, lo, hi)
-            q1, q2, qs = residual(nm, nl)
-            better = (q1 * q1 + q2 * q2 < norm) | (_half == 4)
-            if _half == 0:
-                new = [nm, nl, q1, q2, list(qs)]
-                done = better
-            else:
-                take = better & ~done
-                new[0] = np.where(take, nm, new[0])
-                new[1] = np.where(take, nl, new[1])
-                new[2] = np.where(take, q1, new[2])
-                new[3] = np.where(take, q2, new[3])
-                new[4] = [np.where(take, x, y) for x, y in zip(qs, new[4])]
-                done = done | better
-            if done.all():
-                break
-            step = np.where(done, step, 0.5 * step)
-        m, ls, r1, r2, st = new[0], new[1], new[2], new[3], tuple(new[4])
-    return m, np.exp(ls)
+def truncated_params(mean, var, iters=40):
+    """(m, s) of the Gaussian whose truncation to [-pi/2, pi/2] has this mean and variance,
+    by the one rule of ``core.truncated`` (the mean kept, the variance capped where no truncated
+    Gaussian reaches it). The OSL shaders run the same iteration."""
+    m, s, _ = _truncated.solve(mean, var, iters)
+    return m, s
 
 
 def _z_moments(m, s):

@@ -26,32 +26,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import log_ndtr
 
-from .fits import LAMBERT_VARIANCE, correlation_curve, fit_material
-from .geometry import HALF_PI, directions_from_half_diff, view_centred_angles
-from .merl import MerlTable, cell_centres, cell_indices_view
-from .profiles import Profiles, compute_profiles, specular_values
-
-MODES = ("warp", "model")
-
-
-@dataclass
-class EditTargets:
-    """Slider values. ``None`` keeps the measured value (identity on that axis)."""
-
-    strength: float = 1.0                 # overall energy scale
-    colour: tuple = (1.0, 1.0, 1.0)       # per-channel energy scale
-    grazing_boost: float = 1.0            # scale of the energy above the base alpha_b
-    mu_slope: float | None = None         # in [-1, 0]
-    sigma2: float | None = None           # in (0, pi^2/12]
-    mode: str = "warp"
-    lock: bool = False                    # sigma2 follows mu_slope along the correlation quadratic
-    correlation_a: float | None = None    # the quadratic's a (from a set fit); needed with lock
-
-    def is_identity(self) -> bool:
-        return (self.mode == "warp" and self.strength == 1.0 and tuple(self.colour) == (1.0, 1.0, 1.0)
-                and self.grazing_boost == 1.0 and self.mu_slope is None and self.sigma2 is None
-                and not self.lock)
-
+from ..fits import LAMBERT_VARIANCE, correlation_curve, fit_material
+from ..geometry import HALF_PI, directions_from_half_diff, view_centred_angles
+from ..merl import MerlTable, cell_centres, cell_indices_view
+from ..profiles import Profiles, compute_profiles, specular_values
+from .. import truncated as _truncated
+from .targets import MIN_SIGMA2, MODES, EditTargets, resolve_targets, target_energy  # noqa: F401 (re-exported)
 
 @dataclass
 class EditResult:
@@ -69,51 +49,6 @@ class EditResult:
         return bool(np.any(self.max_albedo > 1.0))
 
 
-MIN_SIGMA2 = 1e-7  # narrower than any MERL cell near the mirror: a "mirror" for the table
-
-
-def resolve_targets(t: EditTargets, fit: dict):
-    """Clamp slider values to their ranges; returns (mu, sigma2, warnings)."""
-    warnings = []
-    mu = fit["mu_slope"] if t.mu_slope is None else float(t.mu_slope)
-    if not np.isfinite(mu):
-        raise ValueError("mean slope must be finite")
-    if t.mu_slope is not None and not -1.0 <= mu <= 0.0:
-        warnings.append(f"mean slope {mu:+.3f} clamped to [-1, 0]")
-        mu = float(np.clip(mu, -1.0, 0.0))
-    if t.lock:
-        if t.correlation_a is None:
-            raise ValueError("the correlation lock needs the quadratic's coefficient a (fit a set first)")
-        s2 = float(correlation_curve(mu, t.correlation_a))
-    else:
-        s2 = fit["sigma2"] if t.sigma2 is None else float(t.sigma2)
-    if not np.isfinite(s2):
-        raise ValueError("variance must be finite")
-    if s2 < MIN_SIGMA2 or s2 > LAMBERT_VARIANCE:
-        if t.sigma2 is not None or t.lock:
-            warnings.append(f"variance {s2:.3g} clamped to ({MIN_SIGMA2:g}, pi^2/12]")
-        s2 = float(np.clip(s2, MIN_SIGMA2, LAMBERT_VARIANCE))
-    for name, v in (("strength", t.strength), ("grazing boost", t.grazing_boost)):
-        if not np.isfinite(v) or v < 0:
-            raise ValueError(f"{name} must be a finite number >= 0")
-    if len(t.colour) != 3 or not all(np.isfinite(c) and c >= 0 for c in t.colour):
-        raise ValueError("colour must be three finite numbers >= 0")
-    if t.mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}")
-    return mu, s2, warnings
-
-
-def target_energy(prof: Profiles, fit: dict, t: EditTargets) -> np.ndarray:
-    """(views, 3): alpha'_c = strength colour_c (alpha_b,c + boost (alpha_c - alpha_b,c))."""
-    out = np.empty((len(prof.theta_o), 3))
-    for i, ch in enumerate("rgb"):
-        a = np.nan_to_num(np.asarray(prof[ch]["alpha"], float))
-        base = fit["channels"].get(ch, {}).get("alpha_b", 0.0) if fit.get("channels") else 0.0
-        base = min(max(base, 0.0), float(a.min()) if a.size else 0.0)
-        out[:, i] = t.strength * t.colour[i] * (base + t.grazing_boost * (a - base))
-    return np.maximum(out, 0.0)
-
-
 # --- warp mode -------------------------------------------------------------------------------
 
 def _graded_nodes(centre, scale, n_gauss=3, ratio=1.35):
@@ -121,7 +56,7 @@ def _graded_nodes(centre, scale, n_gauss=3, ratio=1.35):
 
     The finest panel is capped at 0.03 rad so that broad lobes still resolve the table's
     1-degree cells and the clipping edges."""
-    from .quadrature import gauss_legendre, graded_edges
+    from ..quadrature import gauss_legendre, graded_edges
 
     e = graded_edges(centre, -HALF_PI, HALF_PI, min(max(scale, 1e-6) / 4.0, 0.03), ratio)
     xg, wg = gauss_legendre(n_gauss)
@@ -285,61 +220,26 @@ def _log_mass(a, b):
 
 
 def _trunc_moments(m, s):
-    """Mean and variance of N(m, s^2) truncated to [-pi/2, pi/2] (vectorized, tail-safe)."""
-    m, s = np.asarray(m, float), np.asarray(s, float)
-    a, b = (-HALF_PI - m) / s, (HALF_PI - m) / s
-    log_z = _log_mass(a, b)
-    pa = np.exp(-0.5 * a * a - _LOG_SQRT_2PI - log_z)  # phi(a) / Z
-    pb = np.exp(-0.5 * b * b - _LOG_SQRT_2PI - log_z)
-    mean = m + s * (pa - pb)
-    var = s * s * (1 + (a * pa - b * pb) - (pa - pb) ** 2)
-    # The closed form cancels badly when all the mass sits in a sliver at one edge; there
-    # the truncated law is exponential to first order, and its variance equals its
-    # squared mean distance from that edge.
-    d = np.minimum(np.abs(HALF_PI - mean), np.abs(mean + HALF_PI))
-    return np.clip(mean, -HALF_PI, HALF_PI), np.where(np.isfinite(var) & (var > 0), var, d * d)
+    """Mean and variance of N(m, s^2) truncated to [-pi/2, pi/2] (core.truncated)."""
+    return _truncated.moments(m, s)
 
 
-def solve_truncated(mean_t, var_t, iters=60):
-    """(m, s) of the untruncated Gaussian whose truncation has this mean and variance."""
+def solve_truncated(mean_t, var_t, iters=40):
+    """(m, s, ok) of the Gaussian whose truncation has this mean and variance, by the one rule of
+    ``core.truncated`` (the mean kept, the variance capped); ok where the targets were met."""
     mean_t = np.asarray(mean_t, float)
     var_t = np.broadcast_to(np.asarray(var_t, float), mean_t.shape)
-    m = mean_t.copy()
-    s = np.sqrt(var_t)
-    for _ in range(iters):
-        mt, vt = _trunc_moments(m, s)
-        # Bounded: an unreachable target (a wide lobe centred at the horizon) must give the
-        # nearest finite lobe, never a runaway centre or width.
-        m_next = np.clip(m + (mean_t - mt), -2.0 * np.pi, 2.0 * np.pi)
-        s_next = np.clip(s * np.sqrt(np.clip(var_t / np.maximum(vt, 1e-300), 0.25, 4.0)), 1e-4, 1e3)
-        still = np.any(np.abs(m_next - m) > 1e-13) or np.any(np.abs(s_next - s) > 1e-13 * s)
-        m, s = m_next, s_next
-        if not still:
-            break
-    mt, vt = _trunc_moments(m, s)
-    ok = (np.abs(mt - mean_t) < 1e-6) & (np.abs(vt / var_t - 1) < 1e-4)
+    m, s, used = _truncated.solve(mean_t, var_t, iters)
+    mt, vt = _truncated.moments(m, s)
+    # Reached: nothing capped, and the widths' bounds (s >= 1e-4) did not stop it.
+    ok = (used >= np.maximum(var_t, 1e-14)) & (np.abs(mt - mean_t) < 1e-6) & (np.abs(vt / used - 1) < 1e-4)
     return m, s, ok
 
 
-def _reachable_truncated(mean_t, var_t, retries=40):
-    """``solve_truncated``, but where no truncated Gaussian has both targets (a mean near
-    the horizon allows only a small variance) the variance gives way, never the mean.
-
-    Left alone, the nearest solution is a nearly uniform lobe; near grazing, where the
-    energy is largest, it then leaks into every other view through the reciprocal average."""
-    mean_t = np.asarray(mean_t, float)
-    var_t = np.array(np.broadcast_to(var_t, mean_t.shape), float)
-    m, s, ok = solve_truncated(mean_t, var_t)
-    todo = np.flatnonzero(~ok)
-    if len(todo):
-        # The variance shrinks by 0.8 per retry, up to ``retries`` times, and a view keeps its
-        # first reachable one. The views are independent: every retry is solved in one call.
-        ladder = np.cumprod(np.column_stack([var_t[todo]] + [np.full(len(todo), 0.8)] * retries), axis=1)[:, 1:]
-        lm, ls, lok = solve_truncated(np.repeat(mean_t[todo], retries).reshape(ladder.shape), ladder)
-        first = np.where(lok.any(axis=1), np.argmax(lok, axis=1), retries - 1)
-        rows = np.arange(len(todo))
-        m[todo], s[todo], ok[todo] = lm[rows, first], ls[rows, first], lok[rows, first]
-    return m, s, ok
+def _reachable_truncated(mean_t, var_t):
+    """``solve_truncated``; where no truncated Gaussian has both targets the variance gives way
+    (the shared rule), never the mean."""
+    return solve_truncated(mean_t, var_t)
 
 
 def _truncated_gauss(x, m, s):
@@ -873,7 +773,7 @@ def _tabulate(table, evaluate, kd, grid, geometric=False):
 
 def directional_albedo(table: MerlTable, views=None) -> np.ndarray:
     """(views, 3): integral of rho cos(theta_i) over the hemisphere for each view."""
-    from .integrate import default_views, get_operator
+    from ..integrate import default_views, get_operator
 
     views = default_views(30, 89.0) if views is None else np.asarray(views, float)
     op = get_operator(views, memo=False)

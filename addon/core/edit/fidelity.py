@@ -1,0 +1,137 @@
+"""The measuring stick of an edit: every view of the written table re-measured against its target.
+
+The profile machinery (``profiles.compute_profiles``) measures the edited table as a user
+would; each counted view (5-80 deg, >= 5 % of the channel's peak target energy) is compared,
+per channel, with what the sliders promise (``targets.view_targets``):
+- energy: |alpha' / alpha_target - 1|, worst view;
+- variance ratio: |(Sxx' + Spp') / (Sxx_target + Spp_target) - 1| (the average variance that
+  sigma~^2 fits), median and worst view;
+- mean: |mu' - mu_target| in radians, worst view;
+- shape (warp mode, views up to 60 deg): skewness change |g3' - g3| / max(|g3|, 1) and kurtosis
+  change |k' - k| / k (k the full, not excess, kurtosis), worst over both axes and views.
+Views whose target is out of reach (``reach.view_reachable``) are listed, not counted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..profiles import Profiles, compute_profiles
+from .reach import counted_views, view_reachable
+from .targets import RGB, ViewTargets
+
+SHAPE_MAX_VIEW = math.radians(60.0)
+# SPEC §6 tolerances.
+TOLERANCES = {"energy": 0.02, "variance_median": 0.02, "variance_worst": 0.10, "mean": 0.02, "shape": 0.10}
+
+
+@dataclass
+class ChannelFidelity:
+    channel: str
+    views: int                  # counted views
+    energy: float               # worst |alpha'/alpha* - 1|
+    variance_median: float
+    variance_worst: float
+    mean: float                 # worst |mu' - mu*| (rad)
+    shape: float                # worst skew/kurtosis change (nan in model mode)
+    excluded_deg: list = field(default_factory=list)   # unreachable views, not counted
+    worst_view_deg: dict = field(default_factory=dict)  # figure -> view (deg) where it is worst
+
+    def meets(self, tol=TOLERANCES) -> bool:
+        figures = {"energy": self.energy, "variance_median": self.variance_median,
+                   "variance_worst": self.variance_worst, "mean": self.mean, "shape": self.shape}
+        return all(not (v > tol[k]) for k, v in figures.items())  # nan (not measured) passes
+
+
+@dataclass
+class Fidelity:
+    channels: dict              # 'r', 'g', 'b' -> ChannelFidelity
+    profiles: Profiles
+
+    def worst(self, figure: str) -> float:
+        vals = [getattr(c, figure) for c in self.channels.values()]
+        vals = [v for v in vals if np.isfinite(v)]
+        return max(vals) if vals else float("nan")
+
+    def meets(self, tol=TOLERANCES) -> bool:
+        return all(c.meets(tol) for c in self.channels.values())
+
+    @property
+    def excluded_fraction(self) -> float:
+        n = sum(c.views + len(c.excluded_deg) for c in self.channels.values())
+        return sum(len(c.excluded_deg) for c in self.channels.values()) / n if n else 0.0
+
+    def summary(self) -> dict:
+        out = {f: self.worst(f) for f in ("energy", "variance_median", "variance_worst", "mean", "shape")}
+        out["excluded"] = self.excluded_fraction
+        out["meets"] = self.meets()
+        return out
+
+
+def _stack(prof, key):
+    return np.stack([np.asarray(prof[ch][key], float) for ch in RGB], axis=1)
+
+
+def _worst(err, mask, theta):
+    e = np.where(mask, err, -np.inf)
+    if not mask.any():
+        return float("nan"), None
+    k = np.unravel_index(np.argmax(e), e.shape)[0]
+    return float(e.max()), round(float(np.degrees(theta[k])), 1)
+
+
+def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) -> Fidelity:
+    """Per-view fidelity of ``edited`` (a MerlTable or its Profiles, measured with the original's kd).
+
+    ``original`` gives the measured means and variances the reach test compares against;
+    ``reachable`` (V, 3) overrides the reach test."""
+    if isinstance(edited, Profiles):
+        prof = edited
+    else:
+        prof = compute_profiles(edited, original.theta_o, kd=original.kd if original.split else None,
+                                split=original.split)
+    theta = np.asarray(targets.theta_o, float)
+    counted = counted_views(theta, targets.alpha)
+    if reachable is None:
+        reachable = view_reachable(theta, targets.mean, targets.var_tt, targets.var_pp,
+                                   _stack(original, "mu_theta"), 0.5 * (_stack(original, "sigma_tt")
+                                                                       + _stack(original, "sigma_pp")))
+    use = counted & reachable
+    alpha = np.nan_to_num(_stack(prof, "alpha"))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e_energy = np.abs(alpha / targets.alpha - 1.0)
+        var = 0.5 * (_stack(prof, "sigma_tt") + _stack(prof, "sigma_pp"))
+        e_var = np.abs(var / targets.variance - 1.0)
+    e_var = np.nan_to_num(e_var, nan=1.0)  # a view left without a lobe is off by 100 %
+    e_mean = np.nan_to_num(np.abs(_stack(prof, "mu_theta") - targets.mean), nan=math.pi)
+    e_energy = np.nan_to_num(e_energy, nan=1.0)
+    shape_mask = use & (theta[:, None] <= SHAPE_MAX_VIEW + 1e-9)
+    if targets.shape is not None:
+        parts = []
+        for key, ref in targets.shape.items():
+            got = _stack(prof, key)
+            if key.startswith("skew"):
+                parts.append(np.abs(got - ref) / np.maximum(np.abs(ref), 1.0))
+            else:
+                parts.append(np.abs(got - ref) / np.maximum(ref + 3.0, 1e-9))
+        e_shape = np.nan_to_num(np.max(parts, axis=0), nan=1.0)
+    else:
+        e_shape = None
+    channels = {}
+    for i, ch in enumerate(RGB):
+        u = use[:, i]
+        where = {}
+        en, where["energy"] = _worst(e_energy[:, i:i + 1], u[:, None], theta)
+        vw, where["variance"] = _worst(e_var[:, i:i + 1], u[:, None], theta)
+        mn, where["mean"] = _worst(e_mean[:, i:i + 1], u[:, None], theta)
+        if e_shape is not None:
+            sh, where["shape"] = _worst(e_shape[:, i:i + 1], shape_mask[:, i:i + 1], theta)
+        else:
+            sh = float("nan")
+        vm = float(np.median(e_var[u, i])) if u.any() else float("nan")
+        excluded = [round(float(d), 1) for d in np.degrees(theta[counted[:, i] & ~reachable[:, i]])]
+        channels[ch] = ChannelFidelity(ch, int(u.sum()), en, vm, vw, mn, sh, excluded, where)
+    return Fidelity(channels, prof)

@@ -1,0 +1,315 @@
+"""Reciprocal-by-construction synthesis: the specular table transformed in (theta_h, theta_d, phi_d).
+
+A MERL table is a function of the half/difference angles with phi_d folded, so any table built
+cell by cell in that domain is reciprocal: nothing is averaged between the two views a cell
+belongs to. The transform, per channel c:
+
+    rho'(h, d, p) = G_c(d) * exp(q(d) L(h, d, p)) / s(d)^2 * rho_spec(h / s(d), d, p) + kd_c
+
+- s(d): a width scale of theta_h (the lobe's width, hence the views' variances);
+- exp(q L), L = log(cos th_i cos th_o / cos^2 th_d): a reciprocal tilt (1 at the mirror) that
+  moves every view's mean toward (q > 0) or away from the normal; q = q~ / V(d) so that q~ is in
+  radians of shift per unit of the tilt's slope;
+- G_c(d): energy gains (the 1/s^2 keeps a small lobe's energy as its width changes).
+
+Near the specular lobe theta_d ~ theta_o, so controls indexed by theta_d act almost per view.
+All three are per theta_d ring (90 values), solved by a fixed number of damped Gauss-Newton
+steps on every view's re-measured energy, mean and average variance, with a smoothness penalty
+across rings. The sensitivities are exact: the profile operator is linear in the table's values
+(sums = weights @ values), so d sums / d control = weights @ (d values / d control).
+A fixed number of steps from a fixed start, with fixed damping: the map from sliders to table
+is continuous (no bisection, no picking among rounds).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import HALF_PI, directions_from_half_diff
+from ..integrate import SliceOperator
+from ..merl import RES_PD, RES_TD, RES_TH, MerlTable, cell_centres
+
+# Operator columns used by the solve: 1, x, phi, x^2, phi^2 (exponents(4) order: 0, 1, 2, 3, 5).
+_COLS = (0, 1, 2, 3, 5)
+STEPS = 12
+KNOTS = 16
+# Residual units: the SPEC §6 tolerances (log energy, mean in rad, log variance).
+UNITS = np.array([0.02, 0.02, 0.02])
+# Smoothness across theta_d rings (second differences), in the controls' own units.
+SMOOTH = np.array([0.05, 0.05, 0.05])   # log s, q~, log G
+DAMPING = 0.3
+ROBUST = 3.0   # residual (in UNITS) beyond which a view's pull stops growing
+LOG_S_RANGE = (-2.3, 1.2)   # width scale 0.1 .. 3.3
+Q_RANGE = (-4.0, 4.0)
+MAX_STEP = 0.5               # trust region: the largest change of any control in one step
+TILT_MAX = 3.0               # the tilt may raise a cell by at most e^3 (cells at the horizon)
+
+
+_GEOMETRY: dict = {}
+
+
+def _cell_geometry():
+    """Per cell: the tilt's log factor L (material independent, once per process)."""
+    if "L" not in _GEOMETRY:
+        th, td, pd = cell_centres()
+        wi, wo = directions_from_half_diff(th, td, pd)
+        ci, co = np.maximum(wi[:, 2], 1e-3), np.maximum(wo[:, 2], 1e-3)
+        L = np.log(ci * co) - 2.0 * np.log(np.cos(td))
+        _GEOMETRY["L"] = L.reshape(RES_TH, RES_TD, RES_PD)
+    return _GEOMETRY["L"]
+
+
+@dataclass
+class Controls:
+    """The transform's controls per theta_d ring."""
+
+    log_s: np.ndarray    # (90,)
+    q: np.ndarray        # (90,) tilt in the scaled units q~ (q = q~ / V_ring)
+    log_g: np.ndarray    # (90, C) per channel
+
+    @classmethod
+    def identity(cls, channels=3):
+        return cls(np.zeros(RES_TD), np.zeros(RES_TD), np.zeros((RES_TD, channels)))
+
+
+class Transform:
+    """The cell-wise transform of one material's specular values (90, 90, 180, C)."""
+
+    def __init__(self, spec, ring_var):
+        self.spec = spec
+        self.L = _cell_geometry()
+        self.ring_var = np.maximum(np.asarray(ring_var, float), 1e-8)  # (90,) the measured variance per ring
+        self.ih = np.arange(RES_TH, dtype=float) + 0.5
+
+    def _interp(self, log_s):
+        """Values at theta_h / s per ring: (90, 90, 180, C) and d/d(log s) of the lookup.
+
+        Catmull-Rom along the ring index, so that the lookup and its derivative are continuous in
+        s (the Gauss-Newton steps use the derivative: a piecewise-linear lookup made the solved
+        table jump as the sliders moved). Ring i's centre is u = i + 0.5 with u = sqrt(theta_h /
+        (pi/2)) * 90; below the first centre the data are mirrored about theta_h = 0 (u = 0), where
+        a lobe is even in the signed ring coordinate. At s = 1 the lookup returns the values."""
+        s = np.exp(log_s)
+        p = self.ih[:, None] / np.sqrt(s)[None, :] - 0.5            # (ih, id) fractional ring
+        dp = -0.5 * (p + 0.5)                                        # d p / d log s
+        beyond = p > RES_TH - 1.0
+        pc = np.clip(p, -0.5, RES_TH - 1.0)
+        i0 = np.floor(pc).astype(np.int64)
+        f = (pc - i0)[:, :, None, None]
+        idx = np.arange(RES_TD)[None, :]
+
+        def ring(j):
+            j = np.where(j < 0, -1 - j, np.minimum(j, RES_TH - 1))
+            return self.spec[j, idx]
+
+        v0, v1, v2, v3 = ring(i0 - 1), ring(i0), ring(i0 + 1), ring(i0 + 2)
+        c1 = v2 - v0
+        c2 = 2.0 * v0 - 5.0 * v1 + 4.0 * v2 - v3
+        c3 = -v0 + 3.0 * v1 - 3.0 * v2 + v3
+        val = v1 + 0.5 * f * (c1 + f * (c2 + f * c3))
+        dval = 0.5 * (c1 + f * (2.0 * c2 + 3.0 * f * c3)) * dp[:, :, None, None]
+        # Overshoot below zero is cut (a reflectance); the cut is continuous.
+        neg = val < 0.0
+        val[neg] = 0.0
+        dval[neg] = 0.0
+        val[beyond] = 0.0
+        dval[beyond] = 0.0
+        return val, dval
+
+    def values(self, c: Controls, with_derivatives=False):
+        """Specular values (90, 90, 180, C); with derivatives d/d log s and d/d q~ (same shape)."""
+        val, dval = self._interp(c.log_s)
+        qr = (c.q / self.ring_var)[None, :, None]
+        tilt = np.exp(np.clip(qr * self.L, -700.0, TILT_MAX))            # (ih, id, 180)
+        gain = np.exp(c.log_g - 2.0 * c.log_s[:, None])              # (id, C)
+        factor = tilt[..., None] * gain[None, :, None, :]
+        out = val * factor
+        if not with_derivatives:
+            return out
+        d_logs = dval * factor - 2.0 * out
+        d_q = out * (self.L / self.ring_var[None, :, None])[..., None]
+        return out, d_logs, d_q
+
+
+class RingSums:
+    """The profile operator regrouped by (view, theta_d ring): for per-cell values, the sums of
+    the five monomials per view, split by the ring of each cell. One sparse matrix per monomial
+    (rows: view x ring, columns: cells), built once per operator."""
+
+    def __init__(self, op: SliceOperator):
+        from scipy.sparse import csr_matrix
+
+        cells = np.asarray(op.cells, dtype=np.int64)
+        self.n_views = len(op.theta_o)
+        self.theta_o = np.asarray(op.theta_o, float)
+        view = np.repeat(np.arange(self.n_views), np.diff(np.asarray(op.offsets)))
+        key = view * RES_TD + (cells // RES_PD) % RES_TD
+        order = np.argsort(key, kind="stable")
+        n = self.n_views * RES_TD
+        indptr = np.searchsorted(key[order], np.arange(n + 1)).astype(np.int64)
+        idx = cells[order].astype(np.int32)
+        w = np.asarray(op.weights, dtype=np.float64)[order]
+        n_cells = RES_TH * RES_TD * RES_PD
+        self.mats = [csr_matrix((w[:, j], idx, indptr), shape=(n, n_cells)) for j in _COLS]
+
+    def sums(self, flat_values):
+        """(views, 90 rings, 5 monomials[, k]) for per-cell values (N_CELLS,) or (N_CELLS, k)."""
+        v = np.asarray(flat_values, dtype=np.float64)
+        out = np.stack([m @ v for m in self.mats], axis=1)           # (V*90, 5[, k])
+        return out.reshape((self.n_views, RES_TD) + out.shape[1:])
+
+
+def _stats(S):
+    """(energy, mean x, mean phi, average variance) per view from (views, 5) sums about the mirror."""
+    s0 = np.maximum(S[:, 0], 1e-300)
+    mx, mp = S[:, 1] / s0, S[:, 2] / s0
+    var = 0.5 * (S[:, 3] / s0 - mx * mx + S[:, 4] / s0 - mp * mp)
+    return S[:, 0], mx, mp, var
+
+
+def _residual_jacobian(Sr, dSr, goal_e, goal_mx, goal_v, weight):
+    """Residuals (3V,) and their Jacobian (3V, 90) w.r.t. one per-ring control.
+
+    ``Sr`` (V, 90, 5) are the sums split by ring (their sum over rings is the view's sums),
+    ``dSr`` the same for the control's derivative values (ring r's control touches ring r only)."""
+    S = Sr.sum(axis=1)
+    e, mx, mp, var = _stats(S)
+    s0 = np.maximum(S[:, 0], 1e-300)[:, None]
+    d0, dx, dp_, dxx, dpp = (dSr[:, :, j] for j in range(5))
+    de = d0 / s0
+    dmx = (dx - mx[:, None] * d0) / s0
+    dmp = (dp_ - mp[:, None] * d0) / s0
+    dvar = 0.5 * ((dxx - (S[:, 3] / s0[:, 0])[:, None] * d0) / s0 - 2 * mx[:, None] * dmx
+                  + (dpp - (S[:, 4] / s0[:, 0])[:, None] * d0) / s0 - 2 * mp[:, None] * dmp)
+    v = np.maximum(var, 1e-300)[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.concatenate([np.log(np.maximum(e, 1e-300) / goal_e) / UNITS[0],
+                            (mx - goal_mx) / UNITS[1],
+                            np.log(np.maximum(var, 1e-300) / goal_v) / UNITS[2]])
+        J = np.concatenate([de / UNITS[0], dmx / UNITS[1], dvar / v / UNITS[2]])
+    w = np.concatenate([weight[:, 0], weight[:, 1], weight[:, 2]])
+    r = np.nan_to_num(r) * w
+    J = np.nan_to_num(J) * w[:, None]
+    return r, J
+
+
+def _second_difference(n):
+    d = np.zeros((n - 2, n))
+    for i in range(n - 2):
+        d[i, i:i + 3] = (1.0, -2.0, 1.0)
+    return d
+
+
+_D2 = _second_difference(RES_TD)
+
+
+@dataclass
+class SolveReport:
+    steps: int
+    residual_start: float
+    residual_end: float
+
+
+def knot_basis(n_knots):
+    """(90 rings, K) linear B-spline (hat) basis on K knots evenly spread over theta_d."""
+    if n_knots >= RES_TD:
+        return np.eye(RES_TD)
+    x = np.arange(RES_TD) / (RES_TD - 1) * (n_knots - 1)
+    k = np.arange(n_knots)
+    return np.maximum(0.0, 1.0 - np.abs(x[:, None] - k[None, :]))
+
+
+def solve_controls(transform: Transform, rings: RingSums, goal_alpha, goal_mx, goal_var, weight,
+                   steps=None, start_controls: Controls | None = None, n_knots=None):
+    """Damped Gauss-Newton on (log s, q~, log G_avg), each a hat spline over theta_d, on the
+    average channel, added to ``start_controls`` (per ring).
+
+    ``goal_*`` per view (the average channel's targets: energy, mean about the mirror x = theta +
+    theta_o, average variance); ``weight`` (V, 3) per residual kind. Returns (Controls, report)."""
+    steps = STEPS if steps is None else steps
+    B = knot_basis(KNOTS if n_knots is None else n_knots)
+    K = B.shape[1]
+    base = start_controls or Controls.identity(1)
+    y = np.zeros(3 * K)                                              # knot offsets
+    Bfull = np.kron(np.eye(3), B)                                    # (270, 3K)
+    D2 = _second_difference(K) if K > 2 else np.zeros((0, K))
+    reg = np.kron(np.eye(3), D2) / np.repeat(SMOOTH, len(D2))[:, None]
+    x0 = np.concatenate([base.log_s, base.q, base.log_g[:, 0]])
+    start = end = None
+    n = RES_TD
+
+    def controls(y):
+        x = x0 + Bfull @ y
+        return Controls(np.clip(x[:n], *LOG_S_RANGE), np.clip(x[n:2 * n], *Q_RANGE), x[2 * n:, None].copy())
+
+    c = controls(y)
+    for _ in range(steps):
+        vals, d_logs, d_q = transform.values(c, with_derivatives=True)
+        both = rings.sums(np.stack([vals[..., 0].ravel(), d_logs[..., 0].ravel(), d_q[..., 0].ravel()], axis=1))
+        Sr, Ss, Sq = both[..., 0], both[..., 1], both[..., 2]
+        r, Jg = _residual_jacobian(Sr, Sr, goal_alpha, goal_mx, goal_var, weight)
+        _, Js = _residual_jacobian(Sr, Ss, goal_alpha, goal_mx, goal_var, weight)
+        _, Jq = _residual_jacobian(Sr, Sq, goal_alpha, goal_mx, goal_var, weight)
+        J = np.concatenate([Js @ B, Jq @ B, Jg @ B], axis=1)          # (3V, 3K)
+        # A robust (pseudo-Huber) loss: a view whose target is out of reach (a lobe clipped at
+        # the horizon) must not pull every other view off theirs, yet a view far off still pulls
+        # (its residual grows like sqrt|r|; a Cauchy loss let such views go). Smooth in r.
+        robust = (1.0 + (r / ROBUST) ** 2) ** -0.25
+        r = r * robust
+        J = J * robust[:, None]
+        rr = reg @ y
+        cost = float(r @ r + rr @ rr)
+        if start is None:
+            start = cost
+        A = J.T @ J + reg.T @ reg
+        A[np.diag_indices_from(A)] += DAMPING * (np.diag(A) + 1.0)
+        step = -np.linalg.solve(A, J.T @ r + reg.T @ rr)
+        step *= min(1.0, MAX_STEP / max(float(np.abs(step).max()), 1e-300))  # a uniform scale: continuous
+        y = y + step
+        c = controls(y)
+        end = cost
+    return c, SolveReport(steps, start, end)
+
+
+def channel_gains(transform: Transform, rings: RingSums, c: Controls, goal_alpha_rgb, weight):
+    """Per channel G_c per ring by linear least squares on every view's energy (exact: the energy
+    is linear in the gains), smoothed like the other controls. Returns (90, 3) log gains."""
+    shape = Controls(c.log_s, c.q, np.zeros((RES_TD, transform.spec.shape[-1])))
+    vals = transform.values(shape)
+    reg = _D2 / SMOOTH[2]
+    out = np.zeros((RES_TD, 3))
+    energy = rings.mats[0] @ vals.reshape(-1, vals.shape[-1])        # (V*90, C): energy per ring
+    for ch in range(3):
+        A = energy[:, ch].reshape(rings.n_views, RES_TD)
+        goal = np.asarray(goal_alpha_rgb[:, ch], float)
+        ok = goal > 0
+        w = weight / np.where(ok, goal, 1.0) / UNITS[0]              # relative errors, in units
+        M = A * w[:, None]
+        base = np.exp(c.log_g[:, 0])
+        # Unknown: G = base * (1 + y); residual w (A (base (1 + y)) - goal).
+        Mb = M * base[None, :]
+        rhs = w * goal - Mb.sum(axis=1)
+        H = Mb.T @ Mb + (reg * base[None, :]).T @ (reg * base[None, :])
+        H[np.diag_indices_from(H)] += DAMPING * (np.diag(H) + 1.0)
+        y = np.linalg.solve(H, Mb.T @ rhs - (reg * base[None, :]).T @ (reg @ base))
+        out[:, ch] = np.log(np.maximum(base * (1.0 + y), 1e-12))
+    return out
+
+
+def spec_cube(values):
+    """(N_CELLS, C) per-cell specular values as the (90, 90, 180, C) cube."""
+    return np.ascontiguousarray(values).reshape(RES_TH, RES_TD, RES_PD, -1)
+
+
+def tabulate(table: MerlTable, transform: Transform, c: Controls, kd) -> MerlTable:
+    """The edited table: transformed specular values plus kd, input's missing cells kept missing."""
+    vals = transform.values(c)                                        # (90, 90, 180, 3)
+    rho = np.ascontiguousarray(np.moveaxis(vals.reshape(-1, vals.shape[-1]), 1, 0))
+    if not np.isfinite(rho).all() or rho.max(initial=0.0) > 1e30:
+        raise ValueError("synthesis produced non-finite or absurd values; the slider targets are out of reach")
+    rho += np.asarray(kd, float)[:, None]
+    rho *= table.valid
+    return MerlTable(rho, table.valid.copy(), None)

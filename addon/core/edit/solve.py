@@ -1,0 +1,241 @@
+"""The per-view solve: sliders -> per-view targets -> reciprocal transform -> table.
+
+``edit`` is the public entry point (the CLI, the Blender operator and the demo call it).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..fits import LAMBERT_VARIANCE, fit_material
+from ..integrate import get_operator
+from ..merl import RES_TD, MerlTable
+from ..profiles import Profiles, compute_profiles, specular_values
+from . import reciprocal as R
+from .fidelity import Fidelity, measure
+from .reach import ReachableRegion, reachable_region
+from .targets import EditTargets, ViewTargets, resolve_targets, view_targets
+
+
+@dataclass
+class EditResult:
+    table: MerlTable
+    target_mu_slope: float
+    target_sigma2: float
+    achieved_mu_slope: float | None
+    achieved_sigma2: float | None
+    max_albedo: np.ndarray            # per channel, over the sampled views
+    warnings: list = field(default_factory=list)
+    profiles: Profiles | None = None  # re-measured profiles of the output
+    fidelity: Fidelity | None = None  # per-view figures against the sliders' targets
+    region: ReachableRegion | None = None
+    clamped: bool = False             # the request lay outside the region and was moved to its edge
+    requested: tuple | None = None    # (mu, sigma2) before clamping
+    timings: dict = field(default_factory=dict)  # seconds: synthesis, remeasure
+
+    @property
+    def energy_gain(self) -> bool:
+        return bool(np.any(self.max_albedo > 1.0))
+
+
+_RINGS: dict = {}
+
+
+def _rings(theta_o):
+    op = get_operator(theta_o)
+    key = id(op)
+    if _RINGS.get("key") != key:
+        _RINGS.clear()
+        _RINGS.update(key=key, value=R.RingSums(op), op=op)
+    return _RINGS["value"]
+
+
+def _avg_goals(prof: Profiles, fit: dict, vt: ViewTargets):
+    """The average channel's per-view goals: energy, mean about the mirror, average variance."""
+    theta = np.asarray(prof.theta_o, float)
+    alpha = vt.alpha.mean(axis=1)
+    p = prof["avg"]
+    if vt.mode == "model":
+        mean = vt.mu_slope * theta
+        var = np.full_like(theta, vt.sigma2)
+    else:
+        mean = np.asarray(p["mu_theta"], float) + (vt.mu_slope - fit["mu_slope"]) * theta
+        var = 0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float)) * vt.sigma2 / fit["sigma2"]
+    return alpha, np.nan_to_num(mean + theta), np.maximum(np.nan_to_num(var, nan=LAMBERT_VARIANCE), 1e-12)
+
+
+def _weights(theta, alpha):
+    """Per view and residual kind: views with little energy count less (their moments are noise
+    to the user), grazing views beyond 80 deg a little less."""
+    peak = float(np.max(np.where(theta <= math.radians(80.0) + 1e-9, alpha, 0.0), initial=0.0))
+    f = np.clip(alpha / max(peak, 1e-300) / 0.05, 0.0, 1.0) ** 0.5
+    f = np.where(theta > math.radians(80.0) + 1e-9, 0.3 * f, f)
+    return np.repeat(f[:, None], 3, axis=1)
+
+
+def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, values=None, reachable=None):
+    """The reciprocal table for per-view targets ``vt``; returns (table, controls, report)."""
+    kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
+    if values is None:
+        values = specular_values(table, kd, prof.split)
+    theta = np.asarray(prof.theta_o, float)
+    rings = _rings(theta)
+    ring_centres = (np.arange(RES_TD) + 0.5) / RES_TD * (0.5 * math.pi)
+    p = prof["avg"]
+    measured_var = np.nan_to_num(0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float)),
+                                 nan=LAMBERT_VARIANCE)
+    ring_var = np.interp(ring_centres, theta, measured_var)
+    goal_e, goal_mx, goal_v = _avg_goals(prof, fit, vt)
+    weight = _weights(theta, goal_e)
+    # (Out-of-reach views are not down-weighted by the reach test: a yes/no weight would make the
+    # map from sliders to tables jump as a view crosses the boundary. The robust loss tames them.)
+    goal_e = np.maximum(goal_e, 1e-12 * max(float(goal_e.max(initial=0.0)), 1e-300))
+    avg = R.Transform(R.spec_cube(values[:, 3:4]), ring_var)
+    # Start from the per-view answer read off at theta_d = theta_o (where each view's lobe is):
+    # the width by the variance ratio, the gain by the energy ratio (1/s^2 already keeps it).
+    measured_e = np.nan_to_num(np.asarray(p["alpha"], float))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ls0 = np.nan_to_num(0.5 * np.log(goal_v / np.maximum(measured_var, 1e-300)))
+        lg0 = np.nan_to_num(np.log(goal_e / np.maximum(measured_e, 1e-300)))
+    start = R.Controls(np.clip(np.interp(ring_centres, theta, ls0), *R.LOG_S_RANGE), np.zeros(RES_TD),
+                       np.clip(np.interp(ring_centres, theta, lg0), -5.0, 5.0)[:, None])
+    controls, report = R.solve_controls(avg, rings, goal_e, goal_mx, goal_v, weight, start_controls=start)
+    del avg
+    rgb = R.Transform(R.spec_cube(values[:, :3]), ring_var)
+    controls.log_g = R.channel_gains(rgb, rings, controls, vt.alpha, weight[:, 0])
+    return R.tabulate(table, rgb, controls, kd), controls, report
+
+
+def _view_reach(prof, vt):
+    from .reach import view_reachable
+
+    st = lambda k: np.stack([np.asarray(prof[c][k], float) for c in "rgb"], axis=1)  # noqa: E731
+    return view_reachable(vt.theta_o, vt.mean, vt.var_tt, vt.var_pp, st("mu_theta"),
+                          0.5 * (st("sigma_tt") + st("sigma_pp")))
+
+
+def directional_albedo(table: MerlTable, views=None) -> np.ndarray:
+    """(views, 3): integral of rho cos(theta_i) over the hemisphere for each view."""
+    from ..integrate import default_views
+
+    views = default_views(30, 89.0) if views is None else np.asarray(views, float)
+    op = get_operator(views, memo=False)
+    full = np.where(table.valid, table.rho, 0.0).T
+    out = np.empty((len(views), 3))
+    for k in range(len(views)):
+        cells, w = op.albedo_view(k)
+        out[k] = full[cells].T @ np.asarray(w, dtype=float)
+    return out
+
+
+ENERGY_WARNING = 0.2   # warn when a view's re-measured energy is this far off its target
+
+
+def _energy_note(new_prof, vt):
+    """A warning naming the views (up to 80 deg, >= 1e-6 of the peak) whose energy is > 20 % off."""
+    theta = np.asarray(vt.theta_o, float)
+    got = np.stack([np.nan_to_num(np.asarray(new_prof[c]["alpha"], float)) for c in "rgb"], axis=1)
+    want = vt.alpha
+    use = (theta[:, None] <= math.radians(80.0) + 1e-9) & (want > 1e-6 * max(float(want.max(initial=0.0)), 1e-300))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = np.where(use, np.abs(got / want - 1.0), 0.0)
+    bad = (off > ENERGY_WARNING).any(axis=1)
+    if not bad.any():
+        return None
+    deg = np.degrees(theta[bad])
+    return (f"energy not held at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): off by up to "
+            f"{100 * off.max():.0f} %")
+
+
+def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, **extra):
+    albedo = directional_albedo(out).max(axis=0)
+    if np.any(albedo > 1.0):
+        warnings.append(f"the edited material reflects more than it receives (largest directional albedo "
+                        f"{albedo.max():.3f} > 1); scale it down with scale_to_albedo")
+    achieved_mu = achieved_s2 = None
+    new_prof = fid = None
+    timings = extra.pop("timings", {})
+    if remeasure:
+        t0 = time.perf_counter()
+        new_prof = compute_profiles(out, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split)
+        f = fit_material(new_prof)
+        achieved_mu, achieved_s2 = f["mu_slope"], f["sigma2"]
+        if vt is not None:
+            fid = measure(new_prof, vt, prof)
+            note = _energy_note(new_prof, vt)
+            if note:
+                warnings.append(note)
+        timings["remeasure"] = time.perf_counter() - t0
+    return EditResult(out, mu_t, s2_t, achieved_mu, achieved_s2, albedo, warnings, new_prof, fid,
+                      timings=timings, **extra)
+
+
+def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, fit: dict | None = None,
+         remeasure: bool = True, progress=None, region: ReachableRegion | None = None) -> EditResult:
+    """Re-synthesize ``table`` for the slider ``targets``. Never modifies ``table``.
+
+    The request is clamped into the material's reachable region (reported), the per-view
+    targets follow from the sliders (``targets.view_targets``), and one reciprocal transform
+    of the specular table is solved to meet them (``reciprocal``). ``progress(done, total)``
+    is called once per stage."""
+    if prof is None:
+        prof = compute_profiles(table)
+    if fit is None:
+        fit = fit_material(prof)
+    if fit.get("mu_slope") is None or fit.get("sigma2") is None:
+        raise ValueError(f"{table.name}: the material has no specular lobe to edit (all its energy is in kd)")
+    mu_t, s2_t, warnings = resolve_targets(targets, fit)
+    tell = progress or (lambda done, total: None)
+    if targets.is_identity():
+        out = table.copy()
+        out.path = None
+        vt = view_targets(prof, fit, targets, mu_t, s2_t)
+        res = _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt)
+        tell(1, 1)
+        return res
+    if targets.is_energy_only():
+        # Energy only: the specular part scales exactly, per channel.
+        kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
+        spec = np.maximum(table.rho - kd[:, None], 0.0)
+        gain = targets.strength * np.asarray(targets.colour, float)[:, None]
+        rho = np.where(table.valid, np.minimum(table.rho, kd[:, None]) + gain * spec, 0.0)
+        vt = view_targets(prof, fit, targets, mu_t, s2_t)
+        res = _finish(MerlTable(rho, table.valid.copy(), None), mu_t, s2_t, warnings, prof, remeasure, vt)
+        tell(1, 1)
+        return res
+    t0 = time.perf_counter()
+    if region is None:
+        region = reachable_region(prof, fit, mode=targets.mode)
+    requested = (mu_t, s2_t)
+    mu_c, s2_c, clamped = region.clamp(mu_t, s2_t)
+    if clamped:
+        warnings.append(f"mean slope {mu_t:+.3f} and variance {s2_t:.4g} lie outside what a reciprocal table of "
+                        f"this material can show: clamped to the nearest reachable point ({mu_c:+.3f}, {s2_c:.4g})")
+        mu_t, s2_t = mu_c, s2_c
+    tell(1, 3)
+    vt = view_targets(prof, fit, targets, mu_t, s2_t)
+    t_reg = time.perf_counter() - t0
+    out, controls, report = synthesize(table, prof, fit, vt)
+    t_syn = time.perf_counter() - t0
+    tell(2, 3)
+    res = _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt, region=region, clamped=clamped,
+                  requested=requested, timings={"synthesis": t_syn, "region": t_reg})
+    tell(3, 3)
+    return res
+
+
+def scale_to_albedo(result: EditResult, limit: float = 1.0) -> EditResult:
+    """Scale the edited table down so its largest directional albedo is ``limit`` (kd too)."""
+    peak = float(result.max_albedo.max())
+    if peak <= limit:
+        return result
+    f = limit / peak
+    t = MerlTable(result.table.rho * f, result.table.valid.copy(), None)
+    return EditResult(t, result.target_mu_slope, result.target_sigma2, result.achieved_mu_slope,
+                      result.achieved_sigma2, result.max_albedo * f,
+                      [w for w in result.warnings if "reflects more" not in w], result.profiles,
+                      None, result.region, result.clamped, result.requested, dict(result.timings))

@@ -1,0 +1,153 @@
+"""Editing per view (issue 18, SPEC §3 "Editing", §6): every view of the written table follows the
+sliders, the table is reciprocal by construction, small slider moves make small table changes,
+and requests outside the material's reachable region are clamped and said so.
+
+The tolerances here are the ones the replaced pipeline (``edit.legacy``) fails by far on the same
+requests (measured: ggx_glossy sigma2 x 0.5 gave a worst energy error of 8 %, a median variance
+ratio error of 44 % and a worst one of 61 %); ``test_the_replaced_pipeline_fails_them`` checks it.
+"""
+
+import numpy as np
+import pytest
+
+from addon.core.edit import EditTargets, edit, legacy, reachable_region, view_targets
+from addon.core.edit.fidelity import measure
+from addon.core.fits import fit_material
+from addon.core.geometry import view_centred
+from addon.core.merl import MerlTable, lookup
+from addon.core.profiles import compute_profiles
+
+# Per view, worst of r, g, b over the counted views (5-80 deg, >= 5 % of the peak energy).
+ENERGY = 0.03
+VARIANCE_MEDIAN = 0.03
+VARIANCE_WORST = 0.10
+
+
+@pytest.fixture(scope="module")
+def glossy(sample_table):
+    table = sample_table("ggx_glossy")
+    prof = compute_profiles(table)
+    return table, prof, fit_material(prof)
+
+
+@pytest.fixture(scope="module")
+def narrowed(glossy):
+    table, prof, fit = glossy
+    return edit(table, EditTargets(sigma2=fit["sigma2"] * 0.5), prof, fit)
+
+
+def _check_views(fid):
+    assert fid.worst("energy") < ENERGY
+    assert fid.worst("variance_median") < VARIANCE_MEDIAN
+    assert fid.worst("variance_worst") < VARIANCE_WORST
+    assert all(c.views >= 10 for c in fid.channels.values())  # a real number of views was judged
+
+
+def test_every_view_follows_a_variance_edit(narrowed):
+    _check_views(narrowed.fidelity)
+    assert not narrowed.clamped
+
+
+def test_fidelity_is_measured_on_the_written_table(glossy, narrowed):
+    """The result's figures are those of re-measuring the table itself (the stick is not the solver)."""
+    table, prof, fit = glossy
+    vt = view_targets(prof, fit, EditTargets(sigma2=fit["sigma2"] * 0.5), narrowed.target_mu_slope,
+                      narrowed.target_sigma2)
+    again = measure(narrowed.table, vt, prof)
+    for ch in "rgb":
+        assert again.channels[ch].variance_worst == pytest.approx(narrowed.fidelity.channels[ch].variance_worst)
+
+
+@pytest.mark.slow
+def test_the_replaced_pipeline_fails_them(glossy):
+    table, prof, fit = glossy
+    t = EditTargets(sigma2=fit["sigma2"] * 0.5)
+    old = legacy.edit(table, t, prof, fit, remeasure=False)
+    mu, s2, _ = legacy.resolve_targets(t, fit)
+    fid = measure(old.table, view_targets(prof, fit, t, mu, s2), prof)
+    assert fid.worst("variance_median") > VARIANCE_MEDIAN and fid.worst("variance_worst") > VARIANCE_WORST
+
+
+@pytest.mark.slow
+def test_every_view_follows_on_a_measured_material(sample_table):
+    """satin_gold (RGL, decoded from its Neural-BRDF), sigma2 x 0.7. Measured on the same request,
+    the replaced pipeline gave: energy 70 %, variance ratio 4.5 % median / 21 % worst. The mean
+    is not asserted: the reciprocal synthesis misses it by 0.3-0.4 rad at 80 deg on this
+    material (BENCHMARKS.md, issue 18: broad measured lobes at grazing views)."""
+    table = sample_table("rgl/satin_gold")
+    prof = compute_profiles(table)
+    fit = fit_material(prof)
+    res = edit(table, EditTargets(sigma2=fit["sigma2"] * 0.7), prof, fit)
+    fid = res.fidelity
+    assert fid.worst("energy") < 0.05
+    assert fid.worst("variance_median") < 0.04
+    assert fid.worst("variance_worst") < 0.18
+    assert all(c.views >= 30 for c in fid.channels.values())
+
+
+def test_reciprocal_and_missing_cells_stay_missing(glossy):
+    table, prof, fit = glossy
+    valid = table.valid.copy()
+    rng = np.random.default_rng(5)
+    holes = rng.choice(valid.shape[1], 20000, replace=False)
+    valid[:, holes] = False
+    holed = MerlTable(np.where(valid, table.rho, 0.0), valid, None)
+    res = edit(holed, EditTargets(sigma2=fit["sigma2"] * 0.6, mu_slope=fit["mu_slope"] + 0.02), prof, fit,
+               remeasure=False)
+    np.testing.assert_array_equal(res.table.valid, valid)
+    assert np.all(res.table.rho[~valid] == 0.0)
+    assert np.isfinite(res.table.rho).all() and (res.table.rho >= 0).all()
+    wi = view_centred(rng.uniform(-1.4, 1.4, 3000), rng.uniform(-1.4, 1.4, 3000))
+    wo = view_centred(rng.uniform(-1.4, 1.4, 3000), rng.uniform(-1.4, 1.4, 3000))
+    a, _ = lookup(res.table, wi, wo)
+    b, _ = lookup(res.table, wo, wi)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_identity_and_energy_only_are_exact(glossy):
+    table, prof, fit = glossy
+    res = edit(table, EditTargets(), prof, fit)
+    np.testing.assert_array_equal(res.table.rho, table.rho)
+    assert res.fidelity.worst("variance_worst") < 1e-4  # the stick reads the identity as exact
+    res = edit(table, EditTargets(strength=0.8), prof, fit)
+    for i, ch in enumerate("rgb"):
+        np.testing.assert_allclose(res.profiles[ch]["alpha"], 0.8 * prof[ch]["alpha"], rtol=1e-5)
+
+
+def test_small_slider_moves_make_small_table_changes(glossy):
+    """Continuity in the sense a user sees: a 0.1 % slider move changes the lit cells by well under
+    1 % (median) and no cell by more than 3 % of the peak, far less than a 10 % move does. (A fixed
+    number of damped steps is continuous, but not converged: measured, the median change stays
+    ~0.1 % for moves below 0.1 %, so this is not a Lipschitz bound.)"""
+    table, prof, fit = glossy
+    s2 = fit["sigma2"] * 0.6
+    base = edit(table, EditTargets(sigma2=s2), prof, fit, remeasure=False).table.rho
+    lit = base > 1e-3 * base.max()
+    change = {}
+    for d in (1e-3, 0.1):
+        moved = edit(table, EditTargets(sigma2=s2 * (1 + d)), prof, fit, remeasure=False).table.rho
+        diff = np.abs(moved - base)
+        change[d] = (float(np.median(diff[lit] / base[lit])), float(diff.max() / base.max()))
+    assert change[1e-3][0] < 0.01 and change[1e-3][1] < 0.03
+    assert change[0.1][0] > 5 * change[1e-3][0]
+
+
+def test_deterministic(glossy):
+    table, prof, fit = glossy
+    t = EditTargets(sigma2=fit["sigma2"] * 1.3)
+    a = edit(table, t, prof, fit, remeasure=False).table.rho
+    b = edit(table, t, prof, fit, remeasure=False).table.rho
+    np.testing.assert_array_equal(a, b)
+
+
+def test_requests_outside_the_region_are_clamped_and_said_so(glossy):
+    table, prof, fit = glossy
+    region = reachable_region(prof, fit)
+    assert region.contains(fit["mu_slope"], fit["sigma2"])  # the material itself is reachable
+    assert region.sigma2_min < fit["sigma2"] < region.sigma2_max
+    far = EditTargets(mu_slope=-0.2, sigma2=fit["sigma2"] * 0.2)  # a narrow lobe far off the mirror
+    assert not region.contains(-0.2, fit["sigma2"] * 0.2)
+    res = edit(table, far, prof, fit, remeasure=False, region=region)
+    assert res.clamped and res.requested == (-0.2, pytest.approx(fit["sigma2"] * 0.2))
+    assert region.contains(res.target_mu_slope, res.target_sigma2)
+    assert any("clamped to the nearest reachable point" in w for w in res.warnings)
