@@ -5,7 +5,8 @@ the UI state, return a function of ``report_progress`` that does the work with n
 it) and ``finish(context, result)`` (main thread again: write the result back).
 
 - With a window (the UI), ``invoke`` runs the work in a thread, shows progress in the
-  status bar and the window's progress cursor, and Esc or right-click cancels it.
+  status bar and the window's progress cursor, and Esc cancels it. Every other event
+  passes through, so the artist can orbit, click and use the panels while a job runs.
 - Without one (``blender -b``, the bpy module, ``execute`` from a script), the same work
   runs in place, so every operator also works headless.
 
@@ -23,6 +24,15 @@ import bpy
 
 class Cancelled(Exception):
     """Raised inside the work when the user cancelled it."""
+
+
+# The jobs running now, by operator instance: (label, material name). Read by ``running``.
+_RUNNING: dict = {}
+
+
+def running() -> list:
+    """(label, material) of each job in progress, oldest first (the panel and tests use it)."""
+    return list(_RUNNING.values())
 
 
 # Errors that mean "this input or these sliders cannot be used", reported in one line.
@@ -102,6 +112,7 @@ class BackgroundJob:
                 self._state["finished"] = True
 
         self._thread = threading.Thread(target=run, name=f"brdf_moments: {self.job_label}", daemon=True)
+        _RUNNING[id(self)] = (self.job_label, getattr(self, "_mat_name", ""))
         self._started = time.monotonic()
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.1, window=context.window)
@@ -111,6 +122,7 @@ class BackgroundJob:
         return {"RUNNING_MODAL"}
 
     def _end(self, context):
+        _RUNNING.pop(id(self), None)
         wm = context.window_manager
         wm.event_timer_remove(self._timer)
         wm.progress_end()
@@ -118,10 +130,13 @@ class BackgroundJob:
             context.workspace.status_text_set(None)
 
     def modal(self, context, event):
-        if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
+        # Esc is the job's own key; everything else (mouse, keys, other timers) goes on to the
+        # UI, so a job never takes the window from the artist.
+        if event.type == "ESC" and event.value == "PRESS" and not self._cancel.is_set():
             self._cancel.set()
+            return {"RUNNING_MODAL"}
         if event.type != "TIMER":
-            return {"RUNNING_MODAL"} if not self._cancel.is_set() else {"RUNNING_MODAL", "PASS_THROUGH"}
+            return {"PASS_THROUGH"}
         st = self._state
         if not st["finished"]:
             frac = st["done"] / st["total"]
@@ -130,7 +145,7 @@ class BackgroundJob:
                 what = "cancelling..." if self._cancel.is_set() else f"{100 * frac:.0f} %"
                 context.workspace.status_text_set(
                     f"BRDF Moments: {self.job_label} {what} ({time.monotonic() - self._started:.0f} s) - Esc to cancel")
-            return {"RUNNING_MODAL"}
+            return {"PASS_THROUGH"}  # other modal operators' timers too
         self._end(context)
         if st["error"] == "cancelled":
             self.report({"WARNING"}, f"{self.job_label}: cancelled, nothing was changed")

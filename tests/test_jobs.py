@@ -87,7 +87,7 @@ def _drive(op, ctx, until=10.0, esc_after=None):
             op.modal(ctx, _Event("ESC", "PRESS"))
             sent_esc = True
         state = op.modal(ctx, _Event("TIMER"))
-        if "RUNNING_MODAL" not in state:
+        if state & {"FINISHED", "CANCELLED"}:
             return state
         time.sleep(0.01)
     raise AssertionError("the job never finished")
@@ -118,6 +118,45 @@ def test_progress_reaches_the_status_bar_and_the_result_is_written_back(job_clas
     assert op.finished_with == "done"
     assert ctx.window_manager.timers == 0 and ctx.window_manager.progress[-1] == "end"
     assert ctx.workspace.status[-1] is None  # the status bar is given back
+
+
+def test_every_event_but_esc_passes_through_and_right_click_does_not_cancel(job_class):
+    import sys
+
+    jobs = sys.modules["bl_ext.bmtest.brdf_moments.addon.jobs"]
+    gate = threading.Event()
+
+    def work(report_progress):
+        gate.wait(10)
+        report_progress(1, 1)
+        return "done"
+
+    op, ctx = job_class(work), _Context()
+    op._mat_name = "M"
+    op.invoke(ctx, _Event("NONE"))
+    assert jobs.running() == [("Testing", "M")]
+    for kind, value in (("RIGHTMOUSE", "PRESS"), ("RIGHTMOUSE", "RELEASE"), ("MOUSEMOVE", "NOTHING"),
+                        ("MIDDLEMOUSE", "PRESS"), ("N", "PRESS"), ("LEFTMOUSE", "CLICK"), ("WHEELUPMOUSE", "PRESS"),
+                        ("ESC", "RELEASE"), ("TIMER", "NOTHING")):
+        assert op.modal(ctx, _Event(kind, value)) == {"PASS_THROUGH"}, kind
+    assert not op._cancel.is_set()
+    gate.set()
+    assert _drive(op, ctx) == {"FINISHED"} and op.finished_with == "done"
+    assert jobs.running() == []
+
+
+def test_esc_is_consumed_by_the_job(job_class):
+    gate = threading.Event()
+
+    def work(report_progress):
+        gate.wait(10)
+        report_progress(1, 1)
+
+    op, ctx = job_class(work), _Context()
+    op.invoke(ctx, _Event("NONE"))
+    assert op.modal(ctx, _Event("ESC", "PRESS")) == {"RUNNING_MODAL"}  # not passed on to the UI
+    gate.set()
+    assert _drive(op, ctx) == {"CANCELLED"}
 
 
 def test_esc_cancels_and_changes_nothing(job_class):
