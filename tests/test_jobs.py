@@ -84,8 +84,10 @@ def _drive(op, ctx, until=10.0, esc_after=None):
     sent_esc = False
     while time.monotonic() - t0 < until:
         if esc_after is not None and not sent_esc and esc_after():
-            op.modal(ctx, _Event("ESC", "PRESS"))
+            state = op.modal(ctx, _Event("ESC", "PRESS"))
             sent_esc = True
+            if state & {"FINISHED", "CANCELLED"}:
+                return state
         state = op.modal(ctx, _Event("TIMER"))
         if state & {"FINISHED", "CANCELLED"}:
             return state
@@ -113,6 +115,8 @@ def test_progress_reaches_the_status_bar_and_the_result_is_written_back(job_clas
         time.sleep(0.01)
     assert 500 in ctx.window_manager.progress
     assert any(s and "Testing 50 %" in s and "Esc to cancel" in s for s in ctx.workspace.status)
+    # The status bar is rewritten only when its text changes (each write is a redraw).
+    assert len(ctx.workspace.status) < 20 and all(a != b for a, b in zip(ctx.workspace.status, ctx.workspace.status[1:]))
     gate.set()
     assert _drive(op, ctx) == {"FINISHED"}
     assert op.finished_with == "done"
@@ -143,6 +147,9 @@ def test_every_event_but_esc_passes_through_and_right_click_does_not_cancel(job_
     gate.set()
     assert _drive(op, ctx) == {"FINISHED"} and op.finished_with == "done"
     assert jobs.running() == []
+    last = jobs.HISTORY[-1]
+    assert (last["label"], last["material"], last["outcome"]) == ("Testing", "M", "finished")
+    assert last["end"] >= last["start"]
 
 
 def test_esc_is_consumed_by_the_job(job_class):
@@ -154,9 +161,16 @@ def test_esc_is_consumed_by_the_job(job_class):
 
     op, ctx = job_class(work), _Context()
     op.invoke(ctx, _Event("NONE"))
-    assert op.modal(ctx, _Event("ESC", "PRESS")) == {"RUNNING_MODAL"}  # not passed on to the UI
+    # Ends at once, without waiting for the worker, and not passed on to the UI.
+    assert op.modal(ctx, _Event("ESC", "PRESS")) == {"CANCELLED"}
+    assert ctx.window_manager.timers == 0 and ctx.window_manager.progress[-1] == "end"
+    assert ctx.workspace.status[-1] is None
     gate.set()
-    assert _drive(op, ctx) == {"CANCELLED"}
+    op._thread.join(5)
+    assert not op._thread.is_alive() and op.finished_with is None  # the late result is dropped
+    import sys
+
+    assert sys.modules["bl_ext.bmtest.brdf_moments.addon.jobs"].HISTORY[-1]["outcome"] == "cancelled"
 
 
 def test_esc_cancels_and_changes_nothing(job_class):
@@ -175,6 +189,8 @@ def test_esc_cancels_and_changes_nothing(job_class):
     assert op.finished_with is None
     assert op.reports and op.reports[-1][0] == {"WARNING"} and "cancelled" in op.reports[-1][1]
     assert ctx.window_manager.timers == 0
+    op._thread.join(2)
+    assert not op._thread.is_alive()  # the worker stopped at its next progress report
 
 
 @pytest.mark.parametrize("exc, expect", [(ValueError("x.binary: too short"), "x.binary: too short"),
