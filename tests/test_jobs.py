@@ -1,4 +1,4 @@
-"""The threaded job runner behind Analyse and Apply, driven the way Blender drives a modal
+"""The job runner behind Analyse and Apply (a child process, or a thread), driven the way Blender drives a modal
 operator (timer events, Esc), with stand-ins for the window manager: the bpy module has
 no window, so this is where progress, cancel and error reporting are checked."""
 
@@ -58,6 +58,7 @@ def job_class(blender):
 
     class Job(jobs.BackgroundJob):
         job_label = "Testing"
+        use_process = False  # these tests hold the work with threading.Event gates
 
         def __init__(self, work):
             self.work, self.reports, self.finished_with = work, [], None
@@ -204,3 +205,85 @@ def test_errors_in_the_worker_become_reports(job_class, exc, expect):
     assert _drive(op, ctx) == {"CANCELLED"}
     assert op.reports == [({"ERROR"}, expect)]
     assert op.finished_with is None
+
+
+def _gil_holding_work(seconds):
+    """Work that keeps the GIL for about ``seconds`` in one C call (a backtracking regex:
+    the re engine never releases it), like the long numpy calls measured in Blender 3.4."""
+    import re
+
+    n = 18
+    t0 = time.perf_counter()
+    re.match(r"(a+)+$", "a" * n + "b")
+    one = time.perf_counter() - t0
+    while one < seconds / 2 and n < 40:  # each extra "a" doubles the time
+        n += 1
+        one *= 2
+    return "a" * n + "b"
+
+
+def test_a_child_process_runs_the_work_and_its_gil_never_reaches_the_main_loop(job_class):
+    import re
+
+    text = _gil_holding_work(1.5)
+
+    def work(report_progress):
+        report_progress(1, 4)
+        re.match(r"(a+)+$", text)  # about 1.5 s holding this process's GIL
+        report_progress(3, 4)
+        return {"pid": __import__("os").getpid(), "value": 42}
+
+    for use_process in (True, False):
+        op, ctx = job_class(work), _Context()
+        op.use_process = use_process
+        gaps, last = [], time.monotonic()  # from before invoke: a thread may take the GIL as it starts
+        op.invoke(ctx, _Event("NONE"))
+        assert (op._proc is not None) == use_process
+        while True:
+            state = op.modal(ctx, _Event("TIMER"))
+            now = time.monotonic()
+            gaps.append(now - last)
+            last = now
+            if state & {"FINISHED", "CANCELLED"}:
+                break
+            time.sleep(0.01)
+        assert state == {"FINISHED"} and op.finished_with["value"] == 42
+        if use_process:
+            assert op.finished_with["pid"] != __import__("os").getpid()
+            assert max(gaps) < 0.5, max(gaps)  # the main loop ran all along
+            assert 250 in ctx.window_manager.progress  # progress crossed the process boundary
+        else:
+            assert max(gaps) > 0.8, max(gaps)  # the same work in a thread stalls it: the test can fail
+
+
+def test_esc_kills_the_child_at_once_and_errors_come_back_as_reports(job_class):
+    def sleeper(report_progress):
+        report_progress(1, 2)
+        time.sleep(60)
+        return "late"
+
+    op, ctx = job_class(sleeper), _Context()
+    op.use_process = True
+    op.invoke(ctx, _Event("NONE"))
+    time.sleep(0.3)
+    t0 = time.monotonic()
+    assert op.modal(ctx, _Event("ESC", "PRESS")) == {"CANCELLED"}
+    op._thread.join(5)
+    assert not op._proc.is_alive() and time.monotonic() - t0 < 5 and op.finished_with is None
+
+    def broken(report_progress):
+        raise ValueError("x.binary: too short")
+
+    op, ctx = job_class(broken), _Context()
+    op.use_process = True
+    op.invoke(ctx, _Event("NONE"))
+    assert _drive(op, ctx) == {"CANCELLED"} and op.reports == [({"ERROR"}, "x.binary: too short")]
+
+    def dies(report_progress):
+        __import__("os")._exit(3)
+
+    op, ctx = job_class(dies), _Context()
+    op.use_process = True
+    op.invoke(ctx, _Event("NONE"))
+    assert _drive(op, ctx) == {"CANCELLED"}
+    assert op.reports == [({"ERROR"}, "the worker process ended without a result (exit code 3)")]

@@ -176,16 +176,23 @@ def test_build_preview_then_save_and_reopen(lane):
 
 
 def test_the_main_loop_keeps_running_during_jobs(lane):
-    """The 0.05 s timer's largest gap while each job ran (the figures go to BENCHMARKS.md).
-    The bound is loose, for a shared, loaded machine under software GL; it catches the
-    multi-second freezes the lane measured before the fixes (4-5 s per job)."""
+    """Two clocks while each job runs (the figures go to BENCHMARKS.md): a 0.05 s Blender
+    timer (the main loop) and a Python thread waking every 10 ms (the GIL). The jobs' work
+    runs in a child process, so the GIL stays free: before that, the thread saw gaps of
+    0.7-1.3 s here. The main loop's own gaps are Blender drawing in software GL; on a loaded
+    machine they reach seconds with no job at all, so they are bounded by the idle control
+    measured in the same session rather than by a fixed figure."""
     data, _, _, _ = lane
-    jobs = data["jobs"]
+    jobs, idle = data["jobs"], data["idle"]
     assert {j["label"] for j in jobs} >= {"Analysing", "Re-synthesizing"}
+    print(f"\n{'idle control':>16} {'':>9}: {idle['end'] - idle['start']:6.1f} s, main loop {idle['largest_gap']:.3f} s, "
+          f"GIL {idle['largest_gil_gap']:.3f} s, load {idle['loadavg'][0]:.1f}")
     for j in jobs:
-        print(f"{j['label']:>16} {j['outcome']:>9}: {j['seconds']:6.1f} s, largest main-loop gap "
-              f"{j['largest_gap'] if j['largest_gap'] is None else round(j['largest_gap'], 3)} s")
-        assert j["largest_gap"] is not None and j["largest_gap"] < 1.0, j
+        print(f"{j['label']:>16} {j['outcome']:>9}: {j['seconds']:6.1f} s, main loop {j['largest_gap']:.3f} s, "
+              f"GIL {j['largest_gil_gap']:.3f} s")
+    for j in jobs:
+        assert j["largest_gil_gap"] < 0.3, j
+        assert j["largest_gap"] < max(1.0, 1.5 * idle["largest_gap"]), (j, idle)
 
 
 def test_screenshots_show_the_window(lane):
