@@ -123,6 +123,12 @@ def test_input_reaches_the_ui_while_apply_runs(lane):
     assert inp["job_running_after_key"]                  # ... while the job was running
     assert inp["job_running_after_right_click"]          # a right-click did not cancel it
     assert data["steps"]["apply"]["job"]["outcome"] == "finished"
+    # The probe handler behind the job got the key and the right-click while the job ran,
+    # and not the Esc that cancelled the second Apply (the job keeps that one).
+    seen = {(e["type"], e["job_running"]) for e in inp["probe_events"]}
+    assert ("N", True) in seen and ("RIGHTMOUSE", True) in seen, inp["probe_events"]
+    cancel = data["steps"]["apply_cancelled"]["job"]
+    assert not [e for e in inp["probe_events"] if e["type"] == "ESC" and cancel["start"] <= e["t"] <= cancel["end"]]
 
 
 def test_apply_reaches_the_sliders_and_a_cancelled_apply_changes_nothing(lane):
@@ -181,7 +187,8 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
     runs in a child process, so the GIL stays free: before that, the thread saw gaps of
     0.7-1.3 s here. The main loop's own gaps are Blender drawing in software GL; on a loaded
     machine they reach seconds with no job at all, so they are bounded by the idle control
-    measured in the same session rather than by a fixed figure."""
+    measured in the same session rather than by a fixed figure (the 0.2 s target is checked
+    on the GIL, the part the jobs control)."""
     data, _, _, _ = lane
     jobs, idle = data["jobs"], data["idle"]
     assert {j["label"] for j in jobs} >= {"Analysing", "Re-synthesizing"}
@@ -192,7 +199,13 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
               f"GIL {j['largest_gil_gap']:.3f} s")
     for j in jobs:
         assert j["largest_gil_gap"] < 0.3, j
-        assert j["largest_gap"] < max(1.0, 1.5 * idle["largest_gap"]), (j, idle)
+        # No freeze beyond what the same machine shows idle (work on the main thread would
+        # give one gap as long as the job: 40-60 s for an Apply here) ...
+        assert j["largest_gap"] < max(2.0, 2.0 * idle["largest_gap"]), (j, idle)
+        # ... and through a long job (an Apply) the main loop keeps turning: 20 ticks a second
+        # when quiet, 5-6 at a load of 13 on 2 cores; frozen, it would tick once.
+        if j["seconds"] > 30:
+            assert j["ticks"] >= j["seconds"], j
 
 
 def test_screenshots_show_the_window(lane):

@@ -88,6 +88,28 @@ def screenshot(name, wait=True):
     return path
 
 
+# --- a second modal handler, behind the job's: it sees only what the job lets through -------
+
+PROBE_EVENTS = []
+
+
+class WINDOWED_OT_probe(bpy.types.Operator):
+    bl_idname = "wm.windowed_probe"
+    bl_label = "Windowed lane probe"
+
+    def invoke(self, context, event):
+        context.window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.value == "PRESS" and event.type in {"RIGHTMOUSE", "N", "ESC"}:
+            PROBE_EVENTS.append({"type": event.type, "t": time.monotonic(), "job_running": bool(jobs().running())})
+        return {"PASS_THROUGH"}
+
+
+bpy.utils.register_class(WINDOWED_OT_probe)
+
+
 # --- the material -----------------------------------------------------------------------------
 
 def digest(text):
@@ -188,23 +210,33 @@ def session():
     record("sliders", shot=screenshot("sliders"))
 
     # Apply, and while it runs: a key that toggles the 3D view's sidebar, and a right-click
-    # (a context menu opens; the job must go on).
+    # (a context menu opens; the job must go on). A probe handler started before the job sits
+    # behind it: it sees the events only if the job passes them on.
+    with override():
+        bpy.ops.wm.windowed_probe("INVOKE_DEFAULT")
     status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
     yield 0.5
     sidebar = area("VIEW_3D").spaces.active.show_region_ui
     key_over("VIEW_3D", "n")
-    yield 0.5
+    for _ in range(100):  # the main loop may be slow to get to the event on a loaded machine
+        yield 0.1
+        if area("VIEW_3D").spaces.active.show_region_ui != sidebar:
+            break
     result["input"]["sidebar_before"] = sidebar
     result["input"]["sidebar_after"] = area("VIEW_3D").spaces.active.show_region_ui
     result["input"]["job_running_after_key"] = bool(jobs().running())
     x, y = centre("VIEW_3D")
     xdo("mousemove", x - 300, y - 200)
     xdo("click", 3)
-    yield 0.4
-    result["input"]["shot_menu"] = screenshot("apply-right-click", wait=False)
-    yield 0.4
-    xdo("mousemove", 40, 500)  # far from the menu: Blender closes it
+    for _ in range(100):
+        yield 0.1
+        if any(e["type"] == "RIGHTMOUSE" for e in PROBE_EVENTS):
+            break
     yield 0.3
+    result["input"]["shot_menu"] = screenshot("apply-right-click", wait=False)
+    yield 0.5
+    xdo("mousemove", 40, 500)  # far from the menu: Blender closes it
+    yield 0.5
     result["input"]["job_running_after_right_click"] = bool(jobs().running())
     redraw()
     yield 0.3
@@ -222,6 +254,7 @@ def session():
     key_over("VIEW_3D", "Escape")
     yield from wait_jobs()
     record("apply_cancelled", status=status, job=last_job(), running_before_esc=running_before_esc)
+    result["input"]["probe_events"] = list(PROBE_EVENTS)
 
     # Undo and redo with the real keys.
     key_over("VIEW_3D", "ctrl+z")
