@@ -4,8 +4,8 @@ An operator that mixes in ``BackgroundJob`` defines ``start(context)`` (main thr
 the UI state, return a function of ``report_progress`` that does the work with no bpy in
 it) and ``finish(context, result)`` (main thread again: write the result back).
 
-- With a window (the UI), ``invoke`` runs the work in a forked child process (a thread
-  where fork does not exist), shows progress in the status bar and the window's progress
+- With a window (the UI), ``invoke`` runs the work in a forked child process on Linux (a
+  thread elsewhere), shows progress in the status bar and the window's progress
   cursor, and Esc cancels it at once. Every other event passes through, so the artist can
   orbit, click and use the panels while a job runs. A process, not a thread: numpy calls
   that hold the GIL (measured up to 1.3 s in Blender 3.4's window) then cannot stall
@@ -20,6 +20,7 @@ operator returns CANCELLED.
 from __future__ import annotations
 
 import multiprocessing
+import sys
 import threading
 import time
 
@@ -84,9 +85,12 @@ def _in_child(work, conn):
 
 
 def _fork_context():
+    # Linux only: macOS has fork but its system frameworks are not fork-safe, Windows has none.
+    if not sys.platform.startswith("linux"):
+        return None
     try:
         return multiprocessing.get_context("fork")
-    except ValueError:  # no fork on this platform: threads
+    except ValueError:
         return None
 
 
