@@ -72,6 +72,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
                 res.profiles = compute_profiles(res.table, prof.theta_o, kd=prof.kd if prof.split else None,
                                                 split=prof.split)
             report_progress(10, 10)
+            res.table = None  # written to `out`; not sent back from the worker process (100 MB)
             return out, res, prof, fit
 
         return work

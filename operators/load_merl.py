@@ -73,8 +73,14 @@ class BRDFMOMENTS_OT_load_merl(BackgroundJob, bpy.types.Operator, ImportHelper):
             except ValueError as exc:
                 self.report({"ERROR"}, str(exc))
                 return {"CANCELLED"}
-            mat.brdf_moments.source_path = spec
-            bpy.ops.brdf_moments.analyse("INVOKE_DEFAULT", material=mat.name)
+            try:
+                analysis_work(spec, mat.brdf_moments.floor)  # checks the file now: the report, not a traceback
+                # The material keeps its path and analysis until the job lands (Esc keeps both).
+                bpy.ops.brdf_moments.analyse("INVOKE_DEFAULT", material=mat.name, filepath=spec)
+            except (ValueError, RuntimeError) as exc:  # bpy.ops raises RuntimeError on an ERROR report
+                text = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+                self.report({"ERROR"}, text.removeprefix("Error: "))
+                return {"CANCELLED"}
             return {"FINISHED"}
         return BackgroundJob.execute(self, context)
 

@@ -9,6 +9,7 @@
 Usage: .venv/bin/python scripts/package.py [OUT_DIR]
 """
 
+import glob
 import os
 import subprocess
 import sys
@@ -24,11 +25,13 @@ def blender_ext_tool():
     spec = importlib.util.find_spec("bpy")
     if spec is None or not spec.origin:
         raise SystemExit("package: the bpy module is needed for Blender's extension builder (run scripts/setup.sh)")
-    tool = os.path.join(os.path.dirname(spec.origin), "4.5", "scripts", "addons_core", "bl_pkg", "cli",
-                        "blender_ext.py")
-    if not os.path.isfile(tool):
-        raise SystemExit(f"package: {tool} not found")
-    return tool
+    # <bpy>/<major.minor>/scripts/...: found by glob, so any bpy version's builder serves.
+    pattern = os.path.join(os.path.dirname(spec.origin), "[0-9]*.[0-9]*", "scripts", "addons_core", "bl_pkg", "cli",
+                           "blender_ext.py")
+    hits = sorted(glob.glob(pattern))
+    if not hits:
+        raise SystemExit(f"package: {pattern} not found")
+    return hits[-1]
 
 
 def build(out_dir):

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Set up everything: .venv with the engine, the tests and the bpy module; the scipy wheel
-# the extension bundles; and Debian's blender for the `blender -b` test lane.
-# Idempotent: a second run only checks. Needs Python 3.11 (bpy 4.5 wheels are cp311).
+# Set up everything: .venv with the engine, the tests and the bpy module; .venv-bpy50 with
+# the same pins but bpy 5.0 (the third lane); the scipy wheel the extension bundles; Debian's
+# blender for the `blender -b` lane, and Xvfb + xdotool + ImageMagick for the windowed lane.
+# Idempotent: a second run only checks. Needs Python 3.11 (bpy 4.5 and 5.0 wheels are cp311).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3.11}
@@ -21,6 +22,24 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
     .venv/bin/python -m pip install -q --upgrade pip
     .venv/bin/python -m pip install -q -r requirements.txt
     echo "$want" > "$stamp"
+fi
+
+# Lane 3: the same pins with bpy 5.0.1 in its own venv (pip's cache serves the shared wheels).
+BPY50=5.0.1
+stamp50=.venv-bpy50/.requirements.sha
+want50=$(printf '%s %s' "$want" "$BPY50" | sha256sum | cut -d' ' -f1)
+if [ ! -x .venv-bpy50/bin/python ]; then
+    echo "setup: creating .venv-bpy50" >&2
+    "$PY" -m venv .venv-bpy50
+fi
+if [ "$(cat "$stamp50" 2>/dev/null)" != "$want50" ]; then
+    echo "setup: installing the bpy $BPY50 lane's packages (another ~400 MB wheel)" >&2
+    req50=$(mktemp)
+    sed "s/^bpy==.*/bpy==$BPY50/" requirements.txt > "$req50"
+    .venv-bpy50/bin/python -m pip install -q --upgrade pip
+    .venv-bpy50/bin/python -m pip install -q -r "$req50"
+    rm -f "$req50"
+    echo "$want50" > "$stamp50"
 fi
 
 # The wheels the manifest lists (bundled into the extension zip by scripts/package.py).
@@ -50,5 +69,17 @@ if ! command -v blender >/dev/null 2>&1; then
         apt-get install -y -qq --no-install-recommends blender python3-numpy python3-scipy >/dev/null
     else
         echo "setup: no blender and no root apt-get: the blender -b test lane cannot run here" >&2
+    fi
+fi
+
+# The windowed lane: Blender 3.4 in a virtual X server, real key presses, screenshots.
+if ! command -v xvfb-run >/dev/null 2>&1 || ! command -v xdotool >/dev/null 2>&1 || ! command -v import >/dev/null 2>&1; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "setup: installing xvfb, xdotool and imagemagick for the windowed lane" >&2
+        export DEBIAN_FRONTEND=noninteractive
+        apt-get update -qq >/dev/null
+        apt-get install -y -qq --no-install-recommends xvfb xauth xdotool imagemagick >/dev/null
+    else
+        echo "setup: no xvfb/xdotool and no root apt-get: the windowed test lane cannot run here" >&2
     fi
 fi

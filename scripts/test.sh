@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Set up, then run the whole test suite: the engine, lane 1 (the bpy 4.5 module, the
 # repository loaded as an extension), lane 2 (Debian's blender -b 3.4, the packaged
-# legacy add-on) and the stress suite. Both Blender lanes must run: a missing one fails.
+# legacy add-on), lane 3 (the Blender tests again under the bpy 5.0 module, .venv-bpy50),
+# the windowed lane (Blender 3.4 in a window under Xvfb, real key presses) and the stress
+# suite. Every Blender lane must run: a missing one fails (BRDF_MOMENTS_REQUIRE_LANES).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh

@@ -1,4 +1,4 @@
-"""The Blender side under the bpy 4.5 wheel, loaded as an extension (bl_ext.*)."""
+"""The Blender side under the bpy wheel (4.5, and 5.0 in its own lane), loaded as an extension (bl_ext.*)."""
 
 import os
 import shutil
@@ -8,13 +8,16 @@ import sys
 import numpy as np
 import pytest
 
+from addon.core.fits import fit_material
+from addon.core.merl import read_merl
+from addon.core.profiles import compute_profiles
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def test_manifest_passes_blenders_validator(blender):
-    import sysconfig
-
-    tool = os.path.join(sysconfig.get_paths()["purelib"], "bpy", "4.5", "scripts", "addons_core", "bl_pkg", "cli",
+    # <bpy>/<version>/ from Blender itself: the same test serves every bpy lane.
+    tool = os.path.join(blender.utils.resource_path("LOCAL"), "scripts", "addons_core", "bl_pkg", "cli",
                         "blender_ext.py")
     res = subprocess.run([sys.executable, tool, "validate", ROOT], capture_output=True, text=True)
     assert res.returncode == 0, res.stdout + res.stderr
@@ -58,6 +61,37 @@ def test_bad_file_is_reported_not_raised_as_traceback(fresh, tmp_path):
         bpy.ops.brdf_moments.load_merl(filepath=str(bad), material="M")
     assert "bad.binary" in str(info.value) and "too short" in str(info.value)
     assert not bpy.data.materials["M"].brdf_moments.analysed
+
+
+def test_a_missing_file_is_reported_and_the_material_keeps_its_analysis(fresh, tmp_path):
+    import samples
+
+    bpy = fresh
+    src = tmp_path / "gold.binary"
+    shutil.copy(samples.sample_path("gold"), src)
+    mat = bpy.data.materials.new("Gold")
+    assert bpy.ops.brdf_moments.load_merl(filepath=str(src), material="Gold") == {"FINISHED"}
+    before = (mat.brdf_moments.source_path, mat.brdf_moments.profiles_data, mat.brdf_moments.fit_sigma2)
+    for op in (bpy.ops.brdf_moments.load_merl, bpy.ops.brdf_moments.analyse):
+        with pytest.raises(RuntimeError) as info:
+            op(filepath=str(tmp_path / "gone.binary"), material="Gold")
+        assert "gone.binary: no such file" in str(info.value)
+        assert (mat.brdf_moments.source_path, mat.brdf_moments.profiles_data, mat.brdf_moments.fit_sigma2) == before
+
+
+def test_analyse_of_another_file_takes_its_path_with_its_profiles(fresh, tmp_path):
+    import samples
+
+    bpy = fresh
+    mat = bpy.data.materials.new("M")
+    assert bpy.ops.brdf_moments.load_merl(filepath=samples.sample_path("gold"), material="M") == {"FINISHED"}
+    gold_sigma2 = mat.brdf_moments.fit_sigma2
+    rough = samples.sample_path("ggx_rough")
+    assert bpy.ops.brdf_moments.analyse(filepath=rough, material="M") == {"FINISHED"}
+    assert mat.brdf_moments.source_path == rough
+    want = fit_material(compute_profiles(read_merl(rough)))
+    assert mat.brdf_moments.fit_sigma2 == pytest.approx(want["sigma2"], rel=1e-5)
+    assert mat.brdf_moments.fit_sigma2 != pytest.approx(gold_sigma2, rel=0.05)
 
 
 def test_load_registers_an_undo_step(fresh):

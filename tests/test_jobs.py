@@ -1,4 +1,4 @@
-"""The threaded job runner behind Analyse and Apply, driven the way Blender drives a modal
+"""The job runner behind Analyse and Apply (a child process, or a thread), driven the way Blender drives a modal
 operator (timer events, Esc), with stand-ins for the window manager: the bpy module has
 no window, so this is where progress, cancel and error reporting are checked."""
 
@@ -58,6 +58,7 @@ def job_class(blender):
 
     class Job(jobs.BackgroundJob):
         job_label = "Testing"
+        use_process = False  # these tests hold the work with threading.Event gates
 
         def __init__(self, work):
             self.work, self.reports, self.finished_with = work, [], None
@@ -84,10 +85,12 @@ def _drive(op, ctx, until=10.0, esc_after=None):
     sent_esc = False
     while time.monotonic() - t0 < until:
         if esc_after is not None and not sent_esc and esc_after():
-            op.modal(ctx, _Event("ESC", "PRESS"))
+            state = op.modal(ctx, _Event("ESC", "PRESS"))
             sent_esc = True
+            if state & {"FINISHED", "CANCELLED"}:
+                return state
         state = op.modal(ctx, _Event("TIMER"))
-        if "RUNNING_MODAL" not in state:
+        if state & {"FINISHED", "CANCELLED"}:
             return state
         time.sleep(0.01)
     raise AssertionError("the job never finished")
@@ -113,11 +116,62 @@ def test_progress_reaches_the_status_bar_and_the_result_is_written_back(job_clas
         time.sleep(0.01)
     assert 500 in ctx.window_manager.progress
     assert any(s and "Testing 50 %" in s and "Esc to cancel" in s for s in ctx.workspace.status)
+    # The status bar is rewritten only when its text changes (each write is a redraw).
+    assert len(ctx.workspace.status) < 20 and all(a != b for a, b in zip(ctx.workspace.status, ctx.workspace.status[1:]))
     gate.set()
     assert _drive(op, ctx) == {"FINISHED"}
     assert op.finished_with == "done"
     assert ctx.window_manager.timers == 0 and ctx.window_manager.progress[-1] == "end"
     assert ctx.workspace.status[-1] is None  # the status bar is given back
+
+
+def test_every_event_but_esc_passes_through_and_right_click_does_not_cancel(job_class):
+    import sys
+
+    jobs = sys.modules["bl_ext.bmtest.brdf_moments.addon.jobs"]
+    gate = threading.Event()
+
+    def work(report_progress):
+        gate.wait(10)
+        report_progress(1, 1)
+        return "done"
+
+    op, ctx = job_class(work), _Context()
+    op._mat_name = "M"
+    op.invoke(ctx, _Event("NONE"))
+    assert jobs.running() == [("Testing", "M")]
+    for kind, value in (("RIGHTMOUSE", "PRESS"), ("RIGHTMOUSE", "RELEASE"), ("MOUSEMOVE", "NOTHING"),
+                        ("MIDDLEMOUSE", "PRESS"), ("N", "PRESS"), ("LEFTMOUSE", "CLICK"), ("WHEELUPMOUSE", "PRESS"),
+                        ("ESC", "RELEASE"), ("TIMER", "NOTHING")):
+        assert op.modal(ctx, _Event(kind, value)) == {"PASS_THROUGH"}, kind
+    assert not op._cancel.is_set()
+    gate.set()
+    assert _drive(op, ctx) == {"FINISHED"} and op.finished_with == "done"
+    assert jobs.running() == []
+    last = jobs.HISTORY[-1]
+    assert (last["label"], last["material"], last["outcome"]) == ("Testing", "M", "finished")
+    assert last["end"] >= last["start"]
+
+
+def test_esc_is_consumed_by_the_job(job_class):
+    gate = threading.Event()
+
+    def work(report_progress):
+        gate.wait(10)
+        report_progress(1, 1)
+
+    op, ctx = job_class(work), _Context()
+    op.invoke(ctx, _Event("NONE"))
+    # Ends at once, without waiting for the worker, and not passed on to the UI.
+    assert op.modal(ctx, _Event("ESC", "PRESS")) == {"CANCELLED"}
+    assert ctx.window_manager.timers == 0 and ctx.window_manager.progress[-1] == "end"
+    assert ctx.workspace.status[-1] is None
+    gate.set()
+    op._thread.join(5)
+    assert not op._thread.is_alive() and op.finished_with is None  # the late result is dropped
+    import sys
+
+    assert sys.modules["bl_ext.bmtest.brdf_moments.addon.jobs"].HISTORY[-1]["outcome"] == "cancelled"
 
 
 def test_esc_cancels_and_changes_nothing(job_class):
@@ -136,6 +190,8 @@ def test_esc_cancels_and_changes_nothing(job_class):
     assert op.finished_with is None
     assert op.reports and op.reports[-1][0] == {"WARNING"} and "cancelled" in op.reports[-1][1]
     assert ctx.window_manager.timers == 0
+    op._thread.join(2)
+    assert not op._thread.is_alive()  # the worker stopped at its next progress report
 
 
 @pytest.mark.parametrize("exc, expect", [(ValueError("x.binary: too short"), "x.binary: too short"),
@@ -149,3 +205,89 @@ def test_errors_in_the_worker_become_reports(job_class, exc, expect):
     assert _drive(op, ctx) == {"CANCELLED"}
     assert op.reports == [({"ERROR"}, expect)]
     assert op.finished_with is None
+
+
+def _gil_holding_work(seconds):
+    """A string on which a backtracking regex keeps the GIL for at least ``seconds`` in one C
+    call (the re engine never releases it), like the long numpy calls measured in Blender 3.4.
+    Each extra "a" doubles the time; measured, not extrapolated, so a loaded machine cannot
+    make it short."""
+    import re
+
+    for n in range(16, 40):
+        t0 = time.perf_counter()
+        re.match(r"(a+)+$", "a" * n + "b")
+        if time.perf_counter() - t0 >= seconds / 2:
+            return "a" * (n + 1) + "b"
+    raise AssertionError("the regex never got slow")
+
+
+def test_a_child_process_runs_the_work_and_its_gil_never_reaches_the_main_loop(job_class):
+    import re
+
+    text = _gil_holding_work(1.0)
+
+    def work(report_progress):
+        report_progress(1, 4)
+        t0 = time.perf_counter()
+        re.match(r"(a+)+$", text)  # a second or more holding this process's GIL
+        held = time.perf_counter() - t0
+        report_progress(3, 4)
+        return {"pid": __import__("os").getpid(), "value": 42, "held": held}
+
+    for use_process in (True, False):
+        op, ctx = job_class(work), _Context()
+        op.use_process = use_process
+        gaps, last = [], time.monotonic()  # from before invoke: a thread may take the GIL as it starts
+        op.invoke(ctx, _Event("NONE"))
+        assert (op._proc is not None) == use_process
+        while True:
+            state = op.modal(ctx, _Event("TIMER"))
+            now = time.monotonic()
+            gaps.append(now - last)
+            last = now
+            if state & {"FINISHED", "CANCELLED"}:
+                break
+            time.sleep(0.01)
+        assert state == {"FINISHED"} and op.finished_with["value"] == 42
+        assert op.finished_with["held"] > 0.4  # the work really held the GIL that long
+        if use_process:
+            assert op.finished_with["pid"] != __import__("os").getpid()
+            assert max(gaps) < 0.5, max(gaps)  # the main loop ran all along
+            assert 250 in ctx.window_manager.progress  # progress crossed the process boundary
+        else:
+            # The same work in a thread stalls it: the check above can fail.
+            assert max(gaps) > 0.5 * op.finished_with["held"], (max(gaps), op.finished_with["held"])
+
+
+def test_esc_kills_the_child_at_once_and_errors_come_back_as_reports(job_class):
+    def sleeper(report_progress):
+        report_progress(1, 2)
+        time.sleep(60)
+        return "late"
+
+    op, ctx = job_class(sleeper), _Context()
+    op.use_process = True
+    op.invoke(ctx, _Event("NONE"))
+    time.sleep(0.3)
+    t0 = time.monotonic()
+    assert op.modal(ctx, _Event("ESC", "PRESS")) == {"CANCELLED"}
+    op._thread.join(5)
+    assert not op._proc.is_alive() and time.monotonic() - t0 < 5 and op.finished_with is None
+
+    def broken(report_progress):
+        raise ValueError("x.binary: too short")
+
+    op, ctx = job_class(broken), _Context()
+    op.use_process = True
+    op.invoke(ctx, _Event("NONE"))
+    assert _drive(op, ctx) == {"CANCELLED"} and op.reports == [({"ERROR"}, "x.binary: too short")]
+
+    def dies(report_progress):
+        __import__("os")._exit(3)
+
+    op, ctx = job_class(dies), _Context()
+    op.use_process = True
+    op.invoke(ctx, _Event("NONE"))
+    assert _drive(op, ctx) == {"CANCELLED"}
+    assert op.reports == [({"ERROR"}, "the worker process ended without a result (exit code 3)")]

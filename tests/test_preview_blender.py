@@ -83,6 +83,7 @@ def lambert_as_lobe(sample_table):
 
 def test_osl_shaders_compile_under_the_bpy_wheel(bpy, scene, tmp_path):
     from addon.preview import compile_shader, osl_available
+    from addon.compat import node_tree
     from addon.preview.osl import SHADERS, script_node
 
     assert osl_available() == (True, "")
@@ -90,8 +91,7 @@ def test_osl_shaders_compile_under_the_bpy_wheel(bpy, scene, tmp_path):
         oso = compile_shader(name, folder=str(tmp_path))
         assert os.path.getsize(oso) > 0
         mat = bpy.data.materials.new(f"probe {mode}")
-        mat.use_nodes = True
-        node = script_node(mat.node_tree, mode)
+        node = script_node(node_tree(mat), mode)
         assert "BSDF" in node.outputs and "Environment" in node.inputs and "Samples" in node.inputs
 
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
+from ..compat import node_tree
 from ..core.merl import MerlTable, read_merl
 from ..core.render import BakeCache, MomentParams, ModelBRDF, TableBRDF, bake_key, sphere_layout
 from . import osl as osl_path
@@ -118,8 +119,7 @@ def source_of(material):
 # --- materials --------------------------------------------------------------------------------
 
 def _fresh_tree(mat):
-    mat.use_nodes = True
-    nt = mat.node_tree
+    nt = node_tree(mat)
     nt.nodes.clear()
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     return nt, out

@@ -13,6 +13,8 @@ import math
 import bmesh
 import bpy
 
+from ..compat import fix_sampling_pattern, node_tree
+
 COLLECTION = "BRDF Moments Preview"
 CAMERA = "BRDFM Camera"
 SPHERE_MESH = "BRDFM Sphere"
@@ -121,8 +123,7 @@ def ensure_world(scene, env_path, strength=1.0, path="osl"):
             world.cycles.sample_map_resolution = max(256, int(image.size[0]))
         else:
             world.cycles.sampling_method = "NONE"
-    world.use_nodes = True
-    nt = world.node_tree
+    nt = node_tree(world)
     nt.nodes.clear()
     out = nt.nodes.new("ShaderNodeOutputWorld")
     bg = nt.nodes.new("ShaderNodeBackground")
@@ -159,6 +160,7 @@ def configure_render(scene, layout, path, samples=16, engine="CYCLES"):
     c.pixel_filter_type = "BOX"
     c.filter_width = 1.0
     c.seed = 0
+    fix_sampling_pattern(c)  # the same noise on every Blender version
     c.shading_system = path == "osl"
     # camera rays see the spheres; the diffuse closure needs one bounce to reach the world
     c.max_bounces = 1 if path == "osl" else 0

@@ -1,0 +1,222 @@
+"""The windowed lane: Debian's Blender 3.4 in a real window under Xvfb (1920x1080), the
+packaged legacy add-on installed as a user would, driven by timers and real X key and mouse
+events (tests/windowed/drive.py): Load (a missing file, a good one, one cancelled with
+Esc) -> Analyse -> slider moves -> Apply (a key and a right-click while it runs) -> Esc on a
+second Apply -> undo, redo (ctrl+z, ctrl+shift+z) -> Build Preview -> save -> reopen.
+
+Screenshots, the driver's JSON and Blender's log are kept in out/test-artifacts/windowed/."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ARTIFACTS = os.path.join(ROOT, "out", "test-artifacts", "windowed")
+TOOLS = ("blender", "xvfb-run", "xdotool", "import")
+
+INSTALL = """
+import bpy, addon_utils, sys
+bpy.ops.preferences.addon_install(filepath={zip!r}, overwrite=True)
+bpy.ops.preferences.addon_enable(module="brdf_moments")
+if not addon_utils.check("brdf_moments")[1]:
+    sys.exit("the add-on did not enable")
+print("windowed: installed", {zip!r}, flush=True)
+"""
+
+
+@pytest.fixture(scope="module")
+def lane(tmp_path_factory):
+    missing = [t for t in TOOLS if shutil.which(t) is None]
+    if missing:
+        why = f"{', '.join(missing)} not installed, so the windowed lane cannot run (scripts/setup.sh installs them)"
+        if os.environ.get("BRDF_MOMENTS_REQUIRE_LANES"):
+            pytest.fail(why)
+        pytest.skip(why)
+    import samples
+
+    tmp = tmp_path_factory.mktemp("windowed")
+    built = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "package.py"), str(tmp / "dist")],
+                           capture_output=True, text=True, check=True).stdout.split()
+    legacy = next(p for p in built if p.endswith("-legacy.zip"))
+    gold, other = tmp / "gold.binary", tmp / "rough.binary"
+    shutil.copy(samples.sample_path("gold"), gold)
+    shutil.copy(samples.sample_path("ggx_rough"), other)
+    out = tmp / "out"
+    env = dict(os.environ, BLENDER_USER_SCRIPTS=str(tmp / "scripts"), BLENDER_USER_CONFIG=str(tmp / "config"))
+    res = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1920x1080x24", "blender", "--factory-startup",
+                          "--python-exit-code", "1", "--python-expr", INSTALL.format(zip=legacy),
+                          "--python", os.path.join(ROOT, "tests", "windowed", "drive.py"), "--",
+                          "--out", str(out), "--gold", str(gold), "--other", str(other)],
+                         capture_output=True, text=True, env=env, timeout=1500)
+    log = res.stdout + res.stderr
+    # Kept for a person to look at (git-ignored): what the artist saw at each step.
+    shutil.rmtree(ARTIFACTS, ignore_errors=True)
+    os.makedirs(ARTIFACTS)
+    for name in os.listdir(out) if out.is_dir() else []:
+        if name.endswith((".png", ".json")):
+            shutil.copy(out / name, ARTIFACTS)
+    with open(os.path.join(ARTIFACTS, "blender.log"), "w") as fh:
+        fh.write(log)
+    assert (out / "windowed.json").is_file(), log[-4000:]
+    data = json.loads((out / "windowed.json").read_text())
+    data["steps"] = {s["name"]: s for s in data["steps"]}
+    return data, log, str(gold), str(other)
+
+
+def edit_fields(state):
+    return {k: state[k] for k in ("edited_path", "edited_profiles", "achieved_mu_slope", "achieved_sigma2",
+                                  "edit_warnings")}
+
+
+def analysis_fields(state):
+    return {k: state[k] for k in ("source_path", "analysed", "profiles", "fit_mu_slope", "fit_sigma2")}
+
+
+def test_the_session_ran_to_the_end_without_a_traceback(lane):
+    data, log, _, _ = lane
+    assert data["errors"] == [], data["errors"]
+    assert data["blender"].startswith("3.4")
+    assert "windowed: installed" in log and "Traceback" not in log
+    assert list(data["steps"]) == ["start", "load_missing", "load", "load_cancelled", "analyse", "sliders", "apply",
+                                   "apply_cancelled", "undo", "redo", "build_preview", "save", "reopen"]
+
+
+def test_load_a_missing_file_then_a_good_one_then_cancel_one(lane):
+    from addon.core.fits import fit_material
+    from addon.core.merl import read_merl
+    from addon.core.profiles import compute_profiles
+
+    data, _, gold, other = lane
+    st = data["steps"]
+    # A missing file: one line, nothing changed.
+    assert st["load_missing"]["status"] == ["CANCELLED"]
+    assert "missing.binary: no such file" in st["load_missing"]["message"]
+    assert st["load_missing"]["state"] == st["start"]["state"] and not st["start"]["state"]["analysed"]
+    # Load: the threaded analysis lands, with the fits this engine computes.
+    load = st["load"]
+    assert load["status"] == ["FINISHED"] and load["job"]["outcome"] == "finished"
+    assert load["state"]["source_path"] == gold and load["state"]["analysed"]
+    want = fit_material(compute_profiles(read_merl(gold)))
+    assert load["state"]["fit_mu_slope"] == pytest.approx(want["mu_slope"], rel=1e-4)
+    assert load["state"]["fit_sigma2"] == pytest.approx(want["sigma2"], rel=1e-4)
+    # Esc during a Load of another file: the material keeps the first file and its analysis.
+    attempts = st["load_cancelled"]["attempts"]
+    cancelled = [a for a in attempts if a["job"]["outcome"] == "cancelled"]
+    assert cancelled, [a["job"] for a in attempts]
+    for a in cancelled:
+        assert a["state"]["source_path"] == gold
+        assert analysis_fields(a["state"]) == analysis_fields(load["state"])
+    # Analyse again: the same file gives the same stored profiles.
+    assert st["analyse"]["job"]["outcome"] == "finished"
+    assert analysis_fields(st["analyse"]["state"]) == analysis_fields(load["state"])
+
+
+def test_input_reaches_the_ui_while_apply_runs(lane):
+    data, _, _, _ = lane
+    inp = data["input"]
+    assert inp["sidebar_after"] != inp["sidebar_before"]  # the N key toggled the 3D view's sidebar
+    assert inp["job_running_after_key"]                  # ... while the job was running
+    assert inp["job_running_after_right_click"]          # a right-click did not cancel it
+    assert data["steps"]["apply"]["job"]["outcome"] == "finished"
+    # The probe handler behind the job got the key and the right-click while the job ran,
+    # and not the Esc that cancelled the second Apply (the job keeps that one).
+    seen = {(e["type"], e["job_running"]) for e in inp["probe_events"]}
+    assert ("N", True) in seen and ("RIGHTMOUSE", True) in seen, inp["probe_events"]
+    cancel = data["steps"]["apply_cancelled"]["job"]
+    assert not [e for e in inp["probe_events"] if e["type"] == "ESC" and cancel["start"] <= e["t"] <= cancel["end"]]
+
+
+def test_apply_reaches_the_sliders_and_a_cancelled_apply_changes_nothing(lane):
+    from addon.core.fits import fit_material
+    from addon.core.merl import read_merl
+    from addon.core.profiles import compute_profiles
+
+    data, _, gold, _ = lane
+    st = data["steps"]
+    sliders, apply = st["sliders"]["state"], st["apply"]["state"]
+    assert sliders["sigma2"] == pytest.approx(1.6 * sliders["fit_sigma2"], rel=1e-5)
+    assert os.path.isfile(apply["edited_path"]) and apply["edited_profiles"]
+    assert apply["achieved_sigma2"] == pytest.approx(sliders["sigma2"], rel=0.05)
+    assert apply["achieved_mu_slope"] == pytest.approx(sliders["mu_slope"], abs=0.03)
+    # The table Blender wrote, measured again here: its fit is what the panel reports.
+    edited = read_merl(apply["edited_path"])
+    assert not np.array_equal(edited.rho, read_merl(gold).rho)
+    refit = fit_material(compute_profiles(edited))
+    assert refit["sigma2"] == pytest.approx(apply["achieved_sigma2"], rel=0.02)
+    # The second Apply, Esc after a second: cancelled, the first Apply's result untouched.
+    second = st["apply_cancelled"]
+    assert second["running_before_esc"] and second["job"]["outcome"] == "cancelled"
+    assert edit_fields(second["state"]) == edit_fields(apply)
+    assert analysis_fields(second["state"]) == analysis_fields(apply)
+
+
+def test_undo_and_redo_with_the_keys(lane):
+    data, _, _, _ = lane
+    st = data["steps"]
+    undo, redo, apply = st["undo"]["state"], st["redo"]["state"], st["apply"]["state"]
+    # ctrl+z takes back the Apply (the cancelled one made no undo step): back to the analysis.
+    assert undo["edited_path"] == "" and undo["edited_profiles"] == ""
+    assert analysis_fields(undo) == analysis_fields(st["analyse"]["state"])
+    assert edit_fields(redo) == edit_fields(apply) and redo["sigma2"] == apply["sigma2"]
+
+
+def test_build_preview_then_save_and_reopen(lane):
+    data, _, _, _ = lane
+    st = data["steps"]
+    prev = st["build_preview"]
+    assert prev["message"] is None and "FINISHED" in prev["status"] or "RUNNING_MODAL" in prev["status"]
+    if prev["job"] and prev["job"]["label"] not in ("Analysing", "Re-synthesizing"):
+        assert prev["job"]["outcome"] == "finished"
+    assert prev["state"]["preview_material"] and "BRDF Moments Preview" in prev["state"]["scenes"]
+    back, saved = st["reopen"]["state"], st["save"]["state"]
+    assert os.path.isfile(st["save"]["blend"])
+    for key in ("source_path", "profiles", "fit_mu_slope", "fit_sigma2", "mu_slope", "sigma2", "edited_path",
+                "edited_profiles", "achieved_sigma2", "preview_material"):
+        assert back[key] == saved[key], key
+    assert back["scenes"] == saved["scenes"]
+
+
+def test_the_main_loop_keeps_running_during_jobs(lane):
+    """Two clocks while each job runs (the figures go to BENCHMARKS.md): a 0.05 s Blender
+    timer (the main loop) and a Python thread waking every 10 ms (the GIL). The jobs' work
+    runs in a child process, so the GIL stays free: before that, the thread saw gaps of
+    0.7-1.3 s here. The main loop's own gaps are Blender drawing in software GL; on a loaded
+    machine they reach seconds with no job at all, so they are bounded by the idle control
+    measured in the same session rather than by a fixed figure (the 0.2 s target is checked
+    on the GIL, the part the jobs control)."""
+    data, _, _, _ = lane
+    jobs, idle = data["jobs"], data["idle"]
+    assert {j["label"] for j in jobs} >= {"Analysing", "Re-synthesizing"}
+    print(f"\n{'idle control':>16} {'':>9}: {idle['end'] - idle['start']:6.1f} s, main loop {idle['largest_gap']:.3f} s, "
+          f"GIL {idle['largest_gil_gap']:.3f} s, load {idle['loadavg'][0]:.1f}")
+    for j in jobs:
+        print(f"{j['label']:>16} {j['outcome']:>9}: {j['seconds']:6.1f} s, main loop {j['largest_gap']:.3f} s, "
+              f"GIL {j['largest_gil_gap']:.3f} s")
+    for j in jobs:
+        assert j["largest_gil_gap"] < 0.3, j
+        # No freeze beyond what the same machine shows idle (work on the main thread would
+        # give one gap as long as the job: 40-60 s for an Apply here) ...
+        assert j["largest_gap"] < max(2.0, 2.0 * idle["largest_gap"]), (j, idle)
+        # ... and through a long job (an Apply) the main loop keeps turning: 20 ticks a second
+        # when quiet, 5-6 at a load of 13 on 2 cores; frozen, it would tick once.
+        if j["seconds"] > 30:
+            assert j["ticks"] >= j["seconds"], j
+
+
+def test_screenshots_show_the_window(lane):
+    import matplotlib.image
+
+    data, _, _, _ = lane
+    shots = [s["shot"] for s in data["steps"].values() if s.get("shot")]
+    shots += [data["input"]["shot_during_job"]]
+    assert len(shots) >= 6
+    for shot in shots:
+        name = os.path.basename(shot)
+        img = matplotlib.image.imread(os.path.join(ARTIFACTS, name))
+        assert img.shape[:2] == (1080, 1920), name
+        assert img[..., :3].std() > 0.02, name  # not a blank screen

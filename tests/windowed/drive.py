@@ -1,0 +1,357 @@
+"""The windowed lane's driver: runs inside a real Blender window (Xvfb), as an artist would,
+with the packaged legacy add-on installed, driven by ``bpy.app.timers`` and real X events
+(xdotool). tests/test_windowed_lane.py starts it and checks what it wrote.
+
+Usage: blender --factory-startup --python drive.py -- --out DIR --gold FILE --other FILE
+
+Writes DIR/windowed.json: a snapshot of the material after every step, what happened to
+the real key presses, every job's outcome with the main loop's largest stall while it ran
+(a 0.05 s timer records its gaps), and screenshots DIR/NN-step.png (ImageMagick ``import``).
+"""
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+import traceback
+
+import bpy
+
+argv = sys.argv[sys.argv.index("--") + 1:]
+OUT = argv[argv.index("--out") + 1]
+GOLD = argv[argv.index("--gold") + 1]
+OTHER = argv[argv.index("--other") + 1]
+MAT = "Material"  # the default cube's
+os.makedirs(OUT, exist_ok=True)
+
+result = {"blender": bpy.app.version_string, "steps": [], "jobs": [], "input": {}, "errors": []}
+ticks = []  # main-loop timer ticks (time.monotonic)
+
+
+def jobs():
+    return sys.modules["brdf_moments.addon.jobs"]
+
+
+def log(*args):
+    print("windowed:", *args, flush=True)
+
+
+# --- the window -------------------------------------------------------------------------------
+
+def window():
+    return bpy.context.window_manager.windows[0]
+
+
+def area(kind):
+    return next(a for a in window().screen.areas if a.type == kind)
+
+
+def override(kind="VIEW_3D"):
+    a = area(kind)
+    region = next(r for r in a.regions if r.type == "WINDOW")
+    return bpy.context.temp_override(window=window(), area=a, region=region)
+
+
+def centre(kind):
+    """An area's centre in X screen coordinates (Blender counts y from the bottom)."""
+    a, win = area(kind), window()
+    return a.x + a.width // 2, win.height - (a.y + a.height // 2)
+
+
+def xdo(*args, wait=True):
+    cmd = ["xdotool", *map(str, args)]
+    return subprocess.run(cmd, check=True, timeout=30) if wait else subprocess.Popen(cmd)
+
+
+def key_over(kind, key, wait=True):
+    """A real key press with the pointer over an area (keys go to the area under the pointer)."""
+    x, y = centre(kind)
+    xdo("mousemove", x, y)
+    return xdo("key", key, wait=wait)
+
+
+def redraw():
+    for a in window().screen.areas:
+        a.tag_redraw()
+
+
+def screenshot(name, wait=True):
+    path = os.path.join(OUT, f"{len(result['steps']):02d}-{name}.png")
+    cmd = ["import", "-window", "root", path]
+    if wait:
+        subprocess.run(cmd, check=True, timeout=60)
+    else:
+        subprocess.Popen(cmd)  # during a job: do not stall the main loop being measured
+    return path
+
+
+# --- a second modal handler, behind the job's: it sees only what the job lets through -------
+
+PROBE_EVENTS = []
+
+
+class WINDOWED_OT_probe(bpy.types.Operator):
+    bl_idname = "wm.windowed_probe"
+    bl_label = "Windowed lane probe"
+
+    def invoke(self, context, event):
+        context.window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.value == "PRESS" and event.type in {"RIGHTMOUSE", "N", "ESC"}:
+            PROBE_EVENTS.append({"type": event.type, "t": time.monotonic(), "job_running": bool(jobs().running())})
+        return {"PASS_THROUGH"}
+
+
+bpy.utils.register_class(WINDOWED_OT_probe)
+
+
+# --- the material -----------------------------------------------------------------------------
+
+def digest(text):
+    return hashlib.sha1(text.encode()).hexdigest()[:16] if text else ""
+
+
+def snapshot():
+    mat = bpy.data.materials.get(MAT)
+    s = mat.brdf_moments
+    return {"source_path": s.source_path, "analysed": s.analysed, "fit_mu_slope": s.fit_mu_slope,
+            "fit_sigma2": s.fit_sigma2, "mu_slope": s.mu_slope, "sigma2": s.sigma2,
+            "profiles": digest(s.profiles_data), "edited_path": s.edited_path,
+            "edited_profiles": digest(s.edited_profiles_data), "achieved_mu_slope": s.achieved_mu_slope,
+            "achieved_sigma2": s.achieved_sigma2, "edit_warnings": s.edit_warnings,
+            "preview_material": s.preview_material, "scenes": sorted(sc.name for sc in bpy.data.scenes),
+            "window_scene": window().scene.name}
+
+
+def record(name, **extra):
+    step = {"name": name, "state": snapshot(), "t": time.monotonic(), **extra}
+    result["steps"].append(step)
+    log(name, json.dumps(extra)[:300])
+    return step
+
+
+def run_op(op, mode="EXEC_DEFAULT", **kwargs):
+    """An operator call as the UI makes it; an ERROR report comes back as its message."""
+    with override():
+        try:
+            return sorted(op(mode, **kwargs)), None
+        except RuntimeError as exc:
+            return ["CANCELLED"], str(exc).strip()
+
+
+def wait_jobs():
+    while jobs().running():
+        yield 0.05
+
+
+def last_job():
+    return jobs().HISTORY[-1] if jobs().HISTORY else None
+
+
+# --- the artist's session ---------------------------------------------------------------------
+
+def session():
+    yield 1.0
+    key_over("VIEW_3D", "Escape")  # closes the first-run splash
+    area("PROPERTIES").spaces.active.context = "MATERIAL"
+    bpy.context.view_layer.objects.active = bpy.data.objects["Cube"]
+    yield 0.5
+    redraw()
+    yield 0.3
+    screenshot("start")
+    record("start")
+    # A control: the main loop with no job, over 3 s, on this (possibly loaded) machine.
+    t0 = time.monotonic()
+    yield 3.0
+    result["idle"] = {"start": t0, "end": time.monotonic(), "loadavg": os.getloadavg()}
+
+    # A missing file: one line in the report, nothing changed, no traceback.
+    status, message = run_op(bpy.ops.brdf_moments.load_merl, filepath=os.path.join(OUT, "missing.binary"),
+                             material=MAT)
+    record("load_missing", status=status, message=message)
+
+    # Load: the file browser's execute starts the threaded analysis.
+    status, message = run_op(bpy.ops.brdf_moments.load_merl, filepath=GOLD, material=MAT)
+    yield from wait_jobs()
+    redraw()
+    yield 0.5
+    record("load", status=status, message=message, job=last_job(), shot=screenshot("loaded"))
+
+    # Load another file and press Esc at once: the material keeps the first file and its analysis.
+    # The analysis takes about half a second, so the Esc may come late: try a few times.
+    attempts = []
+    for _ in range(4):
+        status, message = run_op(bpy.ops.brdf_moments.load_merl, filepath=OTHER, material=MAT)
+        key_over("VIEW_3D", "Escape")
+        yield from wait_jobs()
+        attempts.append({"status": status, "job": last_job(), "state": snapshot()})
+        if last_job()["outcome"] == "cancelled":
+            break
+        run_op(bpy.ops.brdf_moments.load_merl, filepath=GOLD, material=MAT)  # back to the first file
+        yield from wait_jobs()
+    record("load_cancelled", attempts=attempts)
+
+    # Analyse again (the panel's button).
+    status, message = run_op(bpy.ops.brdf_moments.analyse, "INVOKE_DEFAULT", material=MAT)
+    yield from wait_jobs()
+    record("analyse", status=status, job=last_job())
+
+    # Slider moves.
+    s = bpy.data.materials[MAT].brdf_moments
+    s.mu_slope = max(-1.0, min(0.0, s.fit_mu_slope)) + 0.1
+    s.sigma2 = s.fit_sigma2 * 1.6
+    redraw()
+    yield 0.3
+    record("sliders", shot=screenshot("sliders"))
+
+    # Apply, and while it runs: a key that toggles the 3D view's sidebar, and a right-click
+    # (a context menu opens; the job must go on). A probe handler started before the job sits
+    # behind it: it sees the events only if the job passes them on.
+    with override():
+        bpy.ops.wm.windowed_probe("INVOKE_DEFAULT")
+    status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
+    yield 0.5
+    sidebar = area("VIEW_3D").spaces.active.show_region_ui
+    key_over("VIEW_3D", "n")
+    for _ in range(100):  # the main loop may be slow to get to the event on a loaded machine
+        yield 0.1
+        if area("VIEW_3D").spaces.active.show_region_ui != sidebar:
+            break
+    result["input"]["sidebar_before"] = sidebar
+    result["input"]["sidebar_after"] = area("VIEW_3D").spaces.active.show_region_ui
+    result["input"]["job_running_after_key"] = bool(jobs().running())
+    x, y = centre("VIEW_3D")
+    xdo("mousemove", x - 300, y - 200)
+    xdo("click", 3)
+    for _ in range(100):
+        yield 0.1
+        if any(e["type"] == "RIGHTMOUSE" for e in PROBE_EVENTS):
+            break
+    yield 0.3
+    result["input"]["shot_menu"] = screenshot("apply-right-click", wait=False)
+    yield 0.5
+    xdo("mousemove", 40, 500)  # far from the menu: Blender closes it
+    yield 0.5
+    result["input"]["job_running_after_right_click"] = bool(jobs().running())
+    redraw()
+    yield 0.3
+    result["input"]["shot_during_job"] = screenshot("apply-running", wait=False)
+    yield from wait_jobs()
+    redraw()
+    yield 0.5
+    record("apply", status=status, job=last_job(), shot=screenshot("applied"))
+
+    # A second Apply, cancelled with a real Esc: the material stays as the first Apply left it.
+    s.sigma2 = s.fit_sigma2 * 2.5
+    status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
+    yield 1.0
+    running_before_esc = bool(jobs().running())
+    key_over("VIEW_3D", "Escape")
+    yield from wait_jobs()
+    record("apply_cancelled", status=status, job=last_job(), running_before_esc=running_before_esc)
+    result["input"]["probe_events"] = list(PROBE_EVENTS)
+
+    # Undo and redo with the real keys.
+    key_over("VIEW_3D", "ctrl+z")
+    yield 0.8
+    record("undo")
+    key_over("VIEW_3D", "ctrl+shift+z")
+    yield 0.8
+    record("redo")
+
+    # Build Preview (a job if the operator is one; else it runs in the call and is timed here).
+    props = bpy.ops.brdf_moments.build_preview.get_rna_type().properties
+    kwargs = {k: v for k, v in (("size", 64), ("samples", 4)) if k in props}
+    t0 = time.monotonic()
+    status, message = run_op(bpy.ops.brdf_moments.build_preview, "INVOKE_DEFAULT", material=MAT, **kwargs)
+    call = time.monotonic() - t0
+    yield from wait_jobs()
+    redraw()
+    yield 0.8
+    record("build_preview", status=status, message=message, call_seconds=call, job=last_job(),
+           shot=screenshot("preview"))
+
+    # Save, then reopen (the driver's timers are persistent).
+    blend = os.path.join(OUT, "session.blend")
+    with override():
+        bpy.ops.wm.save_as_mainfile(filepath=blend)
+    record("save", blend=blend)
+    with override():
+        bpy.ops.wm.open_mainfile(filepath=blend)
+    yield 1.0
+    reopened_scene = window().scene.name
+    window().scene = bpy.data.scenes["Scene"]  # back to the artist's scene, the cube active
+    bpy.context.view_layer.objects.active = bpy.data.objects["Cube"]
+    yield 0.3
+    area("PROPERTIES").spaces.active.context = "MATERIAL"
+    redraw()
+    yield 0.5
+    record("reopen", reopened_scene=reopened_scene, shot=screenshot("reopened"))
+
+
+# --- the timers -------------------------------------------------------------------------------
+
+STEPS = session()
+
+
+def step():
+    try:
+        delay = next(STEPS)
+    except StopIteration:
+        finish()
+        return None
+    except Exception:  # noqa: BLE001 - written into the result, and the run fails
+        result["errors"].append(traceback.format_exc())
+        finish()
+        return None
+    return float(delay)
+
+
+def tick():
+    ticks.append(time.monotonic())
+    return 0.05
+
+
+def largest_gap(start, end, series=None):
+    series = ticks if series is None else series
+    inside = [t for t in series if start <= t <= end + 0.05]
+    before = [t for t in series if t < start][-1:]
+    gaps = [b - a for a, b in zip(before + inside, inside)]
+    return (max(gaps) if gaps else None), len(inside)
+
+
+def probe():
+    """A Python thread that wakes every 10 ms: its gaps are how long another thread (the job's
+    worker) kept the GIL, apart from the main loop's own drawing."""
+    while True:
+        time.sleep(0.01)
+        probe_ticks.append(time.monotonic())
+
+
+probe_ticks = []
+
+
+def finish():
+    if "idle" in result:
+        result["idle"]["largest_gap"] = largest_gap(result["idle"]["start"], result["idle"]["end"])[0]
+        result["idle"]["ticks"] = largest_gap(result["idle"]["start"], result["idle"]["end"])[1]
+        result["idle"]["largest_gil_gap"] = largest_gap(result["idle"]["start"], result["idle"]["end"], probe_ticks)[0]
+    result["loadavg_end"] = os.getloadavg()
+    for job in jobs().HISTORY:
+        gap, n = largest_gap(job["start"], job["end"])
+        result["jobs"].append({**job, "seconds": job["end"] - job["start"], "ticks": n, "largest_gap": gap,
+                               "largest_gil_gap": largest_gap(job["start"], job["end"], probe_ticks)[0]})
+    with open(os.path.join(OUT, "windowed.json"), "w") as fh:
+        json.dump(result, fh, indent=1)
+    log("done", len(result["steps"]), "steps,", len(result["errors"]), "errors")
+    bpy.ops.wm.quit_blender()
+
+
+threading.Thread(target=probe, daemon=True).start()
+bpy.app.timers.register(tick, first_interval=0.05, persistent=True)
+bpy.app.timers.register(step, first_interval=0.5, persistent=True)
