@@ -13,7 +13,11 @@ the rendered error is measured in BENCHMARKS.md, not assumed.
 The fit is weighted least squares of the table against the model over the views
 theta_o = 0, 5, ..., 80°, each integrated over incoming directions through the half vector on
 the table's own square-root spaced theta_h cells (so a mirror-like peak is resolved):
-minimises sum over views of the integral of (rho_fit - rho)² cos(theta_i) d omega_i.
+minimises sum over views of w(theta_o) times the integral of (rho_fit - rho)² cos(theta_i)
+d omega_i, with w = sin cos theta_o, the share of a sphere's pixels that see that view.
+Schlick's Fresnel always reaches 1 at grazing angles, so an edit that scales the specular
+energy down is approximated with a smaller reflectance and leaves the grazing rim too bright:
+that is the "albedo within" figure the panel states.
 """
 
 from __future__ import annotations
@@ -98,7 +102,10 @@ def _quadrature(views_deg=VIEWS_DEG, n_phi=N_PHI_H):
         ok = (oh > 0.0) & (wi[:, 2] > 0.0)
         wis.append(wi[ok])
         wos.append(np.broadcast_to(wo, wi[ok].shape))
-        ws.append((4.0 * oh * dwh * wi[:, 2])[ok])   # d omega_i = 4 (wo.h) d omega_h
+        # d omega_i = 4 (wo.h) d omega_h; a view's weight is its share of a sphere's pixels
+        # (sin cos theta_o under an orthographic camera): grazing views cover little of the image
+        view_w = max(math.sin(t), math.sin(math.radians(2.5))) * math.cos(t)
+        ws.append((4.0 * oh * dwh * wi[:, 2])[ok] * view_w)
     sizes = [len(w) for w in ws]
     return np.concatenate(wis), np.concatenate(wos), np.concatenate(ws), sizes
 
@@ -109,6 +116,8 @@ def _map_to_principled(G, r, yy, metal_steps=41):
     Per channel the model is linear in x_c = (diffuse d_c, F0_c): cost_c = x G x - 2 x.r_c + yy_c.
     Principled ties them: d_c = (1 - m) b_c, F0_c = (1 - m) s + m b_c; for each metallic m this
     is linear least squares in (b, s), solved in closed form and clipped to the inputs' ranges."""
+    from scipy.optimize import lsq_linear
+
     best = None
     for m in np.linspace(0.0, 1.0, metal_steps):
         A = np.zeros((4, 4))
@@ -121,12 +130,14 @@ def _map_to_principled(G, r, yy, metal_steps=41):
             Ms.append(M)
             A += M.T @ G @ M
             rhs += M.T @ r[c]
-        A += 1e-12 * np.eye(4)
-        u = np.linalg.lstsq(A, rhs, rcond=None)[0]
-        u[:3] = np.clip(u[:3], 0.0, 1.0)
-        u[3] = np.clip(u[3], 0.0, DIELECTRIC_MAX)
-        if m >= 1.0:
-            u[3] = 0.0
+        A += 1e-12 * np.trace(A) * np.eye(4) + 1e-300
+        # box-constrained least squares: |L^T u - L^-1 rhs|^2 is the cost up to a constant
+        ub = np.array([1.0, 1.0, 1.0, 0.0 if m >= 1.0 else DIELECTRIC_MAX])
+        u = np.linalg.solve(A, rhs)
+        if np.any(u < 0.0) or np.any(u > ub):
+            L = np.linalg.cholesky(A)
+            u = lsq_linear(L.T, np.linalg.solve(L, rhs), bounds=(np.zeros(4), np.maximum(ub, 1e-12))).x
+            u = np.clip(u, 0.0, ub)
         cost = sum(float((M @ u) @ G @ (M @ u) - 2.0 * (M @ u) @ r[c] + yy[c]) for c, M in enumerate(Ms))
         # a grey dielectric and a little metal can be the same BRDF: prefer the dielectric
         if best is None or cost < best[0] - 1e-9 * abs(best[0]) - 1e-15:
@@ -148,14 +159,14 @@ def fit_principled(table) -> PrincipledFit:
     view = np.repeat(np.arange(len(sizes)), sizes)[ok]
     norm2 = float(np.sum(w[None, :] * rho ** 2)) or 1.0
 
-    def solve(rough):
+    def solve(rough, metal_steps=11):
         lobe, sch = _lobe_terms(rough * rough, wi, wo)
         feats = np.stack([np.full_like(lobe, 1.0 / np.pi), lobe * (1.0 - sch)])
         y = rho - lobe * sch
         G = (feats * w) @ feats.T
         r = (y * w) @ feats.T                      # (3, 2)
         yy = np.sum(w * y * y, axis=1)
-        return _map_to_principled(G, r, yy)
+        return _map_to_principled(G, r, yy, metal_steps)
 
     grid = np.exp(np.linspace(np.log(0.02), 0.0, 25))
     costs = [solve(g)[0] for g in grid]
@@ -164,7 +175,7 @@ def fit_principled(table) -> PrincipledFit:
     res = minimize_scalar(lambda g: solve(g)[0], bounds=(lo_r, hi_r), method="bounded",
                           options={"xatol": 1e-4})
     rough = float(res.x) if res.fun <= costs[k] else float(grid[k])
-    cost, metal, spec, base = solve(rough)
+    cost, metal, spec, base = solve(rough, 51)
     fit = PrincipledFit(base, metal, rough, spec, 0.0, 0.0)
     vals = principled_brdf(fit, wi, wo)
     err = float(np.sqrt(np.sum(w[None, :] * (vals - rho) ** 2) / norm2))

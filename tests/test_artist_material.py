@@ -1,0 +1,185 @@
+"""Apply reaches the artist's own material (SPEC §4), Restore gives their shader back, and the
+.blend keeps what it needs (bpy 4.5 module, the extension enabled as in test_operators)."""
+
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture
+def artist(fresh, tmp_path, monkeypatch):
+    """The artist's scene: a sphere with their own node tree (a Mix of two shaders), the material
+    analysed from ggx_glossy; a small Cycles render of the sphere under a constant sky."""
+    import samples
+    from addon.core.render import sphere_layout
+    from addon.preview import scene as sc, write_environment
+
+    bpy = fresh
+    src = tmp_path / "glossy.binary"
+    shutil.copy(samples.sample_path("ggx_glossy"), src)
+    mat = bpy.data.materials.new("Artist")
+    mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.8, 0.1, 0.1, 1.0)
+    glossy = nt.nodes.new("ShaderNodeBsdfAnisotropic" if "ShaderNodeBsdfAnisotropic" in dir(bpy.types)
+                          else "ShaderNodeBsdfGlossy")
+    mix = nt.nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = 0.3
+    nt.links.new(diffuse.outputs[0], mix.inputs[1])
+    nt.links.new(glossy.outputs[0], mix.inputs[2])
+    nt.links.new(mix.outputs[0], out.inputs["Surface"])
+    mat.brdf_moments.source_path = str(src)
+    assert bpy.ops.brdf_moments.analyse(material="Artist") == {"FINISHED"}
+
+    scene = bpy.context.scene
+    layout = sphere_layout(24, 24, 1)
+    sky = write_environment(np.full((8, 16, 3), 0.5, np.float32), str(tmp_path / "sky.exr"))
+    sc.configure_render(scene, layout, "baked", samples=256)
+    scene.cycles.max_bounces = scene.cycles.diffuse_bounces = scene.cycles.glossy_bounces = 1
+    sc.ensure_camera(scene, layout)
+    sc.ensure_world(scene, sky, path="osl")
+    (obj,) = sc.ensure_spheres(scene, layout)
+    obj.data.materials.clear()
+    obj.data.materials.append(mat)
+    return bpy, mat, scene, layout, tmp_path
+
+
+def _render(bpy, scene, path):
+    from addon.preview import quiet_stdout
+
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.filepath = str(path)
+    with quiet_stdout():
+        bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(path))
+    w, h = img.size
+    buf = np.empty(w * h * 4, np.float32)
+    img.pixels.foreach_get(buf)
+    bpy.data.images.remove(img)
+    return buf.reshape(h, w, 4)[::-1, :, :3]
+
+
+def _tree(mat):
+    nt = mat.node_tree
+    nodes = sorted((n.name, n.bl_idname, tuple(
+        tuple(s.default_value) if hasattr(s.default_value, "__len__") else s.default_value
+        for s in n.inputs if hasattr(s, "default_value"))) for n in nt.nodes)
+    links = sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
+                   for l in nt.links)
+    return nodes, links
+
+
+def test_apply_renders_the_edit_and_restore_gives_the_original_back(artist):
+    from addon.core.render import Environment, TableBRDF, render_reference, relative_rmse
+    from addon.core.merl import read_merl
+
+    bpy, mat, scene, layout, tmp = artist
+    before_tree = _tree(mat)
+    before = _render(bpy, scene, tmp / "before.exr")
+    state = mat.brdf_moments
+    state.artist_shader = "PRINCIPLED"
+    state.strength = 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    node = mat.node_tree.nodes["BRDF Moments edit"]
+    out = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    assert out.inputs["Surface"].links[0].from_node == node
+    assert "Principled approx" in node.label
+    assert {n.name for n in mat.node_tree.nodes} == {n for n, *_ in before_tree[0]} | {"BRDF Moments edit"}
+    after = _render(bpy, scene, tmp / "after.exr")
+    # What the sphere shows now is the edited table, within the approximation's error: compare
+    # with the converged numpy render of that table under the same sky.
+    mask = layout.interior_mask()
+    sky = Environment.constant((0.5, 0.5, 0.5))
+    ref = render_reference(layout, [TableBRDF(read_merl(state.edited_path))], sky, spp=2048, seed=5)
+    err_after = relative_rmse(after, ref, mask)
+    err_before = relative_rmse(before, ref, mask)
+    stated = state.principled_fit().error
+    assert err_after < stated < err_before, (err_after, stated, err_before)
+    # Restore: the artist's tree exactly as it was, and the same pixels (same seed).
+    assert bpy.ops.brdf_moments.restore_material(material="Artist") == {"FINISHED"}
+    assert _tree(mat) == before_tree
+    again = _render(bpy, scene, tmp / "again.exr")
+    np.testing.assert_array_equal(again, before)
+    assert "BRDF Moments: Artist" not in bpy.data.node_groups
+
+
+def test_apply_twice_keeps_one_node_and_restores_the_first_original(artist):
+    bpy, mat, *_ = artist
+    before_tree = _tree(mat)
+    state = mat.brdf_moments
+    state.artist_shader = "PRINCIPLED"
+    state.strength = 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    first = json.loads(state.principled_data)
+    state.strength = 1.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    assert [n.name for n in mat.node_tree.nodes].count("BRDF Moments edit") == 1
+    second = json.loads(state.principled_data)
+    # three times the specular energy (kd is kept): the fitted reflectance at normal incidence grows
+    f0 = [(1 - d["metallic"]) * d["specular"] + d["metallic"] * d["base_color"][0] for d in (first, second)]
+    assert f0[1] > 3 * f0[0], f0
+    assert bpy.ops.brdf_moments.restore_material(material="Artist") == {"FINISHED"}
+    assert _tree(mat) == before_tree
+
+
+def test_the_edit_and_the_plot_survive_save_and_reopen(artist):
+    bpy, mat, scene, layout, tmp = artist
+    state = mat.brdf_moments
+    state.artist_shader = "PRINCIPLED"
+    state.sigma2 = state.fit_sigma2 * 1.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    plot = bpy.data.images["BRDF Moments plot: Artist"]
+    px = np.empty(plot.size[0] * plot.size[1] * 4, np.float32)
+    plot.pixels.foreach_get(px)
+    path = str(tmp / "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    assert "Artist" not in bpy.data.materials
+    bpy.ops.wm.open_mainfile(filepath=path)
+    mat = bpy.data.materials["Artist"]
+    assert mat.node_tree.nodes["BRDF Moments edit"].node_tree.name == "BRDF Moments: Artist"
+    img = bpy.data.images["BRDF Moments plot: Artist"]
+    again = np.empty(img.size[0] * img.size[1] * 4, np.float32)
+    img.pixels.foreach_get(again)
+    np.testing.assert_allclose(again, px, atol=1 / 255)   # redrawn with the edit, not a blank image
+    # Analyse again keeps the last edit
+    edited = mat.brdf_moments.edited_profiles_data
+    assert bpy.ops.brdf_moments.analyse(material="Artist") == {"FINISHED"}
+    assert mat.brdf_moments.edited_profiles_data == edited and edited
+
+
+def test_osl_edit_keeps_its_table_texture_packed_in_the_blend(artist):
+    from addon.preview import osl_available
+
+    bpy, mat, scene, layout, tmp = artist
+    if not osl_available()[0]:
+        pytest.fail("the bpy wheel's OSL should be reachable in the test harness: " + osl_available()[1])
+    state = mat.brdf_moments
+    state.artist_shader = "OSL"
+    state.strength = 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    group = mat.node_tree.nodes["BRDF Moments edit"].node_tree
+    script = next(n for n in group.nodes if n.bl_idname == "ShaderNodeScript")
+    tex = script.inputs["Table"].default_value
+    assert os.path.isfile(tex)
+    img = bpy.data.images["BRDFM table: Artist"]
+    assert img.packed_file is not None
+    path = str(tmp / "osl.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    with open(tex, "rb") as fh:
+        data = fh.read()
+    os.remove(tex)                                    # "another machine": the texture file is gone
+    bpy.ops.wm.open_mainfile(filepath=path)
+    mat = bpy.data.materials["Artist"]
+    script = next(n for n in mat.node_tree.nodes["BRDF Moments edit"].node_tree.nodes
+                  if n.bl_idname == "ShaderNodeScript")
+    new = script.inputs["Table"].default_value
+    assert os.path.isfile(new)
+    with open(new, "rb") as fh:
+        assert fh.read() == data
