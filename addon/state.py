@@ -12,7 +12,7 @@ import numpy as np
 
 from .core.moments import CHANNELS, PROFILE_KEYS
 
-MU_MIN, MU_MAX = -3.0, 0.5
+MU_MIN, MU_MAX = -2.0, 0.0
 SIGMA2_MIN, SIGMA2_MAX = 1e-8, math.pi ** 2 / 12
 
 
