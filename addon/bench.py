@@ -7,6 +7,8 @@ Sections:
            operator (all 90 views timed), Monte Carlo and the uniform grid;
   memory   peak resident memory of one material's analysis, in a fresh process.
   preview  Cycles preview render time against error, both paths (addon/bench_preview.py).
+  artist   what the artist sees: every preview mode, the live preview and its latency, the
+           Principled approximation of the artist's material (addon/bench_artist.py).
 
 Times are medians over repeats in this one run; the machine is shared, so compare ratios.
 """
@@ -22,7 +24,7 @@ import time
 
 import numpy as np
 
-ALL_SECTIONS = ("closed", "tables", "memory", "fits", "edit", "preview")
+ALL_SECTIONS = ("closed", "tables", "memory", "fits", "edit", "preview", "artist")
 
 
 def _median_time(fn, repeat):
@@ -417,6 +419,12 @@ def _bench_preview(quick):
     return bench_preview(quick)
 
 
+def _bench_artist(quick):
+    from .bench_artist import bench_artist
+
+    return bench_artist(quick)
+
+
 def main(args):
     sections = args.only or ALL_SECTIONS
     unknown = set(sections) - set(ALL_SECTIONS)
@@ -427,6 +435,7 @@ def main(args):
     for name in sections:
         lines = {"closed": lambda: bench_closed(args.quick), "tables": lambda: bench_tables(args.quick),
                  "memory": bench_memory, "fits": lambda: bench_fits(args.quick),
-                 "edit": lambda: bench_edit(args.quick), "preview": lambda: _bench_preview(args.quick)}[name]()
+                 "edit": lambda: bench_edit(args.quick), "preview": lambda: _bench_preview(args.quick),
+                 "artist": lambda: _bench_artist(args.quick)}[name]()
         print("\n".join(lines) + "\n", flush=True)
     return 0

@@ -7,6 +7,8 @@ import textwrap
 
 import bpy
 
+from .live import preview_image_name
+
 
 def osl_supported() -> bool:
     from .preview.osl import osl_available
@@ -156,10 +158,6 @@ def draw_material(layout, mat, context=None):
         row.operator("brdf_moments.show_image", text="Open full size", icon="WINDOW").image = pimg.name
         if getattr(pimg, "preview", None) is not None:
             prev.template_icon(icon_value=pimg.preview.icon_id, scale=8.0)
-
-
-def preview_image_name(mat):
-    return f"BRDF Moments preview: {mat.name}"
 
 
 class MATERIAL_PT_brdf_moments(bpy.types.Panel):

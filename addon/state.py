@@ -93,8 +93,8 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     plot_caption: bpy.props.StringProperty(options={"HIDDEN"})  # the plot's y ranges, one chart a line
     preview_material: bpy.props.StringProperty(options={"HIDDEN"})  # the edited sphere's material
     preview_path: bpy.props.EnumProperty(name="Preview path", default="AUTO", items=[
-        ("AUTO", "Auto", "OSL where this Cycles has it, else baked"),
-        ("OSL", "OSL", "Cycles OSL shader"),
+        ("AUTO", "Auto", "the baked path (the accurate one); OSL on request"),
+        ("OSL", "OSL", "Cycles OSL shader (noisier at the same time)"),
         ("BAKED", "Baked", "numpy radiance per texel through an Emission shader (any engine)")])
     preview_mode: bpy.props.EnumProperty(name="Preview", default="TABULATED", items=[
         ("TABULATED", "Tabulated", "the edited table itself (the material)"),
@@ -197,9 +197,15 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
 
 def _slider_moved(state):
-    """OSL moment-model preview: a slider drag only rewrites the edited sphere's node inputs
-    (no re-synthesis, no bake). Other previews wait for Apply / Build Preview."""
-    if not state.analysed or not state.preview_material:
+    """A slider moved: the panel's preview image follows (one synthesis round and a quick bake,
+    in a thread: ``live``); an OSL sketch preview scene only gets new node inputs."""
+    if not state.analysed:
+        return
+    if state.preview_mode == "TABULATED":
+        from . import live
+
+        live.slider_moved(state.id_data)
+    if not state.preview_material:
         return
     mat = bpy.data.materials.get(state.preview_material)
     if mat is None or mat.get("brdfm_path") != "osl" or mat.get("brdfm_mode") != "model":

@@ -147,7 +147,10 @@ def test_the_edit_and_the_plot_survive_save_and_reopen(artist):
     img = bpy.data.images["BRDF Moments plot: Artist"]
     again = np.empty(img.size[0] * img.size[1] * 4, np.float32)
     img.pixels.foreach_get(again)
-    np.testing.assert_allclose(again, px, atol=1 / 255)   # redrawn with the edit, not a blank image
+    # redrawn from the stored (float32) profiles, with the edit: the same picture up to a few
+    # anti-aliased pixels, not a blank image
+    assert np.mean(np.abs(again - px) > 1 / 255) < 1e-3
+    assert np.mean(np.abs(again.reshape(-1, 4)[:, :3] - 0.16) > 0.1) > 0.01
     # Analyse again keeps the last edit
     edited = mat.brdf_moments.edited_profiles_data
     assert bpy.ops.brdf_moments.analyse(material="Artist") == {"FINISHED"}
@@ -183,3 +186,38 @@ def test_osl_edit_keeps_its_table_texture_packed_in_the_blend(artist):
     assert os.path.isfile(new)
     with open(new, "rb") as fh:
         assert fh.read() == data
+
+
+def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
+    """The live update (in place, as headless Blender runs it): the edited sphere shows a
+    quarter-resolution bake of one synthesis round, the original sphere is untouched."""
+    import sys
+
+    from addon.core.edit import EditTargets
+    from addon.core.merl import read_merl
+    from addon.core.render import TableBRDF, bake_sphere, sphere_layout
+    from addon.preview import load_environment, resolve_environment
+
+    bpy, mat, scene, layout, tmp = artist
+    live = sys.modules["bl_ext.bmtest.brdf_moments.addon.live"]
+    state = mat.brdf_moments
+    assert bpy.ops.brdf_moments.build_preview(material="Artist", path="BAKED", size=48) == {"FINISHED"}
+    before = live.read_preview_image(mat)
+    state.sigma2 = state.fit_sigma2 * 2.0
+    took = live.update_now(mat)
+    assert took is not None and took > 0
+    after = live.read_preview_image(mat)
+    lay = sphere_layout(96, 48, 2)
+    d, (l0, l1), top = lay.diameter, lay.lefts, lay.top
+    body = slice(top + 12, top + d)                       # below the labels
+    np.testing.assert_array_equal(after[body, l0:l0 + d], before[body, l0:l0 + d])
+    # the edited sphere: the bake of one synthesis round of the new sliders, upsampled
+    table = read_merl(state.source_path)
+    new = live.fast_edit(table, EditTargets(sigma2=state.sigma2), state.profiles(), state.fit())
+    env = load_environment(resolve_environment(None))
+    rgb, cov = bake_sphere(TableBRDF(new, state.profiles()), env, max(d // live.LIVE_DIAMETER_DIV, 8),
+                           live.LIVE_SAMPLES, 0)
+    want = live.upsample(rgb * cov[..., None], d)
+    np.testing.assert_allclose(after[body, l1:l1 + d, :3], want[12:], rtol=1e-5, atol=1e-6)
+    # a wider lobe: the highlight drops
+    assert after[body, l1:l1 + d, :3].max() < before[body, l1:l1 + d, :3].max()

@@ -199,6 +199,26 @@ def test_build_preview_baked_renders_original_and_edited(analysed, tmp_path):
     img = bpy.data.images.load(str(out))
     assert tuple(img.size) == (48, 24)
     assert [s.name for s in bpy.data.scenes if s.name != "BRDF Moments Preview"]  # the user's scene is kept
+    # the panel's image is what the spheres' Emission shows: the baked textures, composed
+    shown = bpy.data.images["BRDF Moments preview: Rough"]
+    assert tuple(shown.size) == (48, 24) and shown.use_fake_user
+    px = np.empty(48 * 24 * 4, np.float32)
+    shown.pixels.foreach_get(px)
+    px = px.reshape(24, 48, 4)[::-1]
+    from addon.core.render import sphere_layout
+
+    layout = sphere_layout(48, 24, 2)
+    mask = layout.interior_mask()
+    mask[:11] = False                       # rows under the labels (7 px glyphs from row 1, outlined)
+    for k, o in enumerate(sorted(spheres, key=lambda o: o.location.x)):
+        bake = o.material_slots[0].material.node_tree.nodes["BRDFM Bake"].image
+        tex = np.empty(bake.size[0] * bake.size[1] * 4, np.float32)
+        bake.pixels.foreach_get(tex)
+        tex = tex.reshape(bake.size[1], bake.size[0], 4)[::-1]
+        left = layout.lefts[k]
+        sub = mask[layout.top:layout.top + layout.diameter, left:left + layout.diameter]
+        np.testing.assert_allclose(px[layout.top:layout.top + layout.diameter, left:left + layout.diameter][sub, :3],
+                                   tex[sub, :3], rtol=1e-5, atol=1e-6)
 
 
 def test_slider_drag_updates_the_osl_preview_without_resynthesis(analysed, tmp_path):
