@@ -21,11 +21,6 @@ SIZE = 128
 GT_SPP = 8192
 
 
-def _upsample(tile, d):
-    """Nearest upsampling of a (d0, d0, C) bake to (d, d, C): the live preview's first image."""
-    d0 = tile.shape[0]
-    idx = np.minimum((np.arange(d) * d0) // d, d0 - 1)
-    return tile[idx][:, idx]
 
 
 def bench_artist(quick=False):
@@ -37,7 +32,7 @@ def bench_artist(quick=False):
     from .core.principled import fit_principled
     from .core.profiles import compute_profiles
     from .core.render import MomentParams, TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
-    from .live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
+    from .live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit, upsample
     from .wheel import import_bpy
 
     bpy = import_bpy()
@@ -90,7 +85,7 @@ def bench_artist(quick=False):
         t = time.perf_counter()
         rgb0, cov0 = bake_sphere(brdf, env, d0, LIVE_SAMPLES, 0)
         took = time.perf_counter() - t
-        rgb0, cov0 = _upsample(rgb0, d), _upsample(cov0[..., None], d)[..., 0]
+        rgb0 = upsample(rgb0, d)
         row(name, "live preview, first image", f"D/{LIVE_DIAMETER_DIV} = {d0} px, {LIVE_SAMPLES}+{LIVE_SAMPLES}",
             took, err(layout.compose([np.dstack([rgb0 * cov[..., None], cov])]), gt))
         # 3. OSL: tabulated, and the sketch (moment model) against the table it sketches
@@ -152,3 +147,11 @@ def bench_artist(quick=False):
             f"{max(tot):.2f} s), target 1 s: {'met' if np.median(tot) <= 1.0 else 'missed'}.", ""]
     out += [f"- {n}" for n in notes]
     return out
+
+
+def _tmp_dir():
+    from .core.integrate import default_cache_dir
+
+    path = os.path.join(default_cache_dir(), "preview")
+    os.makedirs(path, exist_ok=True)
+    return path

@@ -121,18 +121,23 @@ def draw_material(layout, mat, context=None):
                   icon="ERROR" if max(state.max_albedo) > 1.0 else "NONE")
         for warning in filter(None, state.edit_warnings.split("\n")):
             wrapped(res.column(align=True), warning, width, icon="ERROR")
+    from .material import is_applied
+
+    if is_applied(mat):
+        res = layout.box()
         used = state.artist_shader_used
         fit = state.principled_fit() if used == "principled" else None
-        if used:
-            col = res.column(align=True)
-            if fit is not None:
-                wrapped(col, f"'{mat.name}' renders a Principled BSDF fitted to the edited table: an approximation, "
-                             f"BRDF error {100 * fit.error:.1f} % (cosine-weighted), albedo within "
-                             f"{100 * fit.albedo_error:.1f} %", width, icon="INFO")
-            else:
-                wrapped(col, f"'{mat.name}' renders the edited table (OSL tabulated shader, Cycles with OSL)",
-                        width, icon="INFO")
-            res.operator("brdf_moments.restore_material", icon="LOOP_BACK").material = mat.name
+        col = res.column(align=True)
+        if fit is not None:
+            wrapped(col, f"'{mat.name}' renders a Principled BSDF fitted to the edited table: an approximation, "
+                         f"BRDF error {100 * fit.error:.1f} % (cosine-weighted), albedo within "
+                         f"{100 * fit.albedo_error:.1f} %", width, icon="INFO")
+        elif used == "osl":
+            wrapped(col, f"'{mat.name}' renders the edited table (OSL tabulated shader, Cycles with OSL)",
+                    width, icon="INFO")
+        else:
+            wrapped(col, f"'{mat.name}' renders an earlier edit", width, icon="INFO")
+        res.operator("brdf_moments.restore_material", icon="LOOP_BACK").material = mat.name
     row = layout.row(align=True)
     row.label(text="Export")
     for what, icon in (("TABLE", "EXPORT"), ("PROFILES", "TEXT"), ("PLOTS", "IMAGE_DATA")):

@@ -221,3 +221,38 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     np.testing.assert_allclose(after[body, l1:l1 + d, :3], want[12:], rtol=1e-5, atol=1e-6)
     # a wider lobe: the highlight drops
     assert after[body, l1:l1 + d, :3].max() < before[body, l1:l1 + d, :3].max()
+
+
+def test_the_sliders_start_at_the_fits_even_below_minus_one(artist):
+    """ggx_glossy's fitted mean slope is below -1 (-1.068): the slider holds it, unclamped."""
+    bpy, mat, *_ = artist
+    state = mat.brdf_moments
+    assert state.fit_mu_slope < -1.0
+    assert state.mu_slope == pytest.approx(state.fit_mu_slope, abs=1e-6)
+    assert state.sigma2 == pytest.approx(state.fit_sigma2, rel=1e-6)
+    # an identity Apply: the sliders at the fit are the measured values (nothing clamped)
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    assert state.achieved_mu_slope == pytest.approx(state.fit_mu_slope, abs=1e-6)
+
+
+def test_the_panel_shows_four_significant_digits_and_the_approximation(artist):
+    from importlib import import_module
+
+    from tests.test_operators import _Recorder
+
+    bpy, mat, *_ = artist
+    panel = import_module("bl_ext.bmtest.brdf_moments.addon.panel")
+    state = mat.brdf_moments
+    state.artist_shader, state.strength = "PRINCIPLED", 0.7
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    log = []
+    panel.draw_material(_Recorder(bpy, log), mat)
+    texts = [entry[2].get("text", "") for entry in log if entry[0] == "label"]
+    assert f"σ̃² = {state.fit_sigma2:.4g}" in texts
+    whole = " ".join(texts)                  # wrapped over several labels
+    assert "Principled BSDF fitted to the edited table: an approximation" in whole
+    ops = [entry[1] for entry in log if entry[0] == "operator"]
+    assert "brdf_moments.restore_material" in ops
+    # one button per action (Export has one per kind of output, and each image its "Open full size")
+    for op in set(ops) - {"brdf_moments.export", "brdf_moments.show_image"}:
+        assert ops.count(op) == 1, op
