@@ -256,3 +256,30 @@ def test_the_panel_shows_four_significant_digits_and_the_approximation(artist):
     # one button per action (Export has one per kind of output, and each image its "Open full size")
     for op in set(ops) - {"brdf_moments.export", "brdf_moments.show_image"}:
         assert ops.count(op) == 1, op
+
+
+def test_osl_table_texture_next_to_the_blend_moves_with_it(artist):
+    from addon.preview import osl_available
+
+    bpy, mat, scene, layout, tmp = artist
+    if not osl_available()[0]:
+        pytest.fail("the bpy wheel's OSL should be reachable in the test harness: " + osl_available()[1])
+    first = tmp / "a"
+    first.mkdir()
+    bpy.ops.wm.save_as_mainfile(filepath=str(first / "scene.blend"))
+    mat = bpy.data.materials["Artist"]
+    state = mat.brdf_moments
+    state.artist_shader, state.texture_storage, state.strength = "OSL", "BESIDE", 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    img = bpy.data.images["BRDFM table: Artist"]
+    assert img.packed_file is None and img.filepath.startswith("//brdf_moments/")
+    written = list((first / "brdf_moments").iterdir())
+    assert len(written) == 1 and written[0].suffix == ".exr"
+    bpy.ops.wm.save_mainfile()
+    # the artist moves the folder (the .blend and its brdf_moments/ beside it) to another place
+    moved = tmp / "b"
+    shutil.move(str(first), str(moved))
+    bpy.ops.wm.open_mainfile(filepath=str(moved / "scene.blend"))
+    script = next(n for n in bpy.data.materials["Artist"].node_tree.nodes["BRDF Moments edit"].node_tree.nodes
+                  if n.bl_idname == "ShaderNodeScript")
+    assert os.path.samefile(script.inputs["Table"].default_value, moved / "brdf_moments" / written[0].name)
