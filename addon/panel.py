@@ -104,8 +104,12 @@ def draw_material(layout, mat, context=None):
     col.prop(state, "scale_to_one")
     row = col.row(align=True)
     row.label(text="Material shader")
-    row.prop(state, "artist_shader", text="")
-    if state.artist_shader in {"AUTO", "OSL"} and osl_supported():
+    osl = osl_supported()
+    if osl:
+        row.prop(state, "artist_shader", text="")
+    else:                       # no OSL in this Blender: the one choice there is
+        row.label(text="Principled (approx.)")
+    if state.artist_shader in {"AUTO", "OSL"} and osl:
         row = col.row(align=True)
         row.label(text="Table texture")
         row.prop(state, "texture_storage", text="")

@@ -22,9 +22,7 @@ def resolve_artist_shader(context, choice):
         return "principled"
     ok = osl_available()[0]
     if choice == "OSL":
-        if not ok:
-            raise ValueError("this Blender has no OSL: choose the Principled approximation")
-        return "osl"
+        return "osl" if ok else "principled"     # a .blend made where OSL was: the approximation here
     scene = context.scene
     osl_scene = scene is not None and scene.render.engine == "CYCLES" and bool(
         getattr(getattr(scene, "cycles", None), "shading_system", False))
