@@ -1,5 +1,5 @@
-"""The BRDF Moments UI: one drawing function, shown near the top of Material Properties and in
-the 3D view's sidebar (N panel, tab "BRDF Moments")."""
+"""The BRDF Moments UI: one drawing function, shown in Material Properties and in tabs of their
+own in the 3D view's and the Shader Editor's sidebars (N panel, tab "BRDF Moments")."""
 
 import math
 import os
@@ -174,7 +174,10 @@ class MATERIAL_PT_brdf_moments(bpy.types.Panel):
     bl_space_type = "PROPERTIES"
     bl_region_type = "WINDOW"
     bl_context = "material"
-    bl_order = -100     # above the engines' Surface panels (their order is 0)
+    # Registered types are sorted by this; a Properties editor that already lists its panels
+    # (any saved layout) appends a new one at the end: the tabs in the 3D view's and the
+    # Shader Editor's sidebars are where it is always at the top.
+    bl_order = -100
 
     @classmethod
     def poll(cls, context):
@@ -198,4 +201,23 @@ class VIEW3D_PT_brdf_moments(bpy.types.Panel):
         draw_material(self.layout, context.object.active_material, context)
 
 
-CLASSES = (MATERIAL_PT_brdf_moments, VIEW3D_PT_brdf_moments)
+class NODE_PT_brdf_moments(bpy.types.Panel):
+    """The same panel in the Shader Editor's sidebar: a tab of its own, next to the material's nodes."""
+
+    bl_label = "BRDF Moments"
+    bl_space_type = "NODE_EDITOR"
+    bl_region_type = "UI"
+    bl_category = "BRDF Moments"
+
+    @classmethod
+    def poll(cls, context):
+        space = context.space_data
+        obj = context.object
+        return (getattr(space, "tree_type", "") == "ShaderNodeTree" and obj is not None
+                and obj.active_material is not None)
+
+    def draw(self, context):
+        draw_material(self.layout, context.object.active_material, context)
+
+
+CLASSES = (MATERIAL_PT_brdf_moments, VIEW3D_PT_brdf_moments, NODE_PT_brdf_moments)
