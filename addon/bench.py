@@ -8,6 +8,8 @@ Sections:
   memory   peak resident memory of one material's analysis, in a fresh process.
   preview  Cycles preview render time against error, both paths (addon/bench_preview.py).
   measured the 59 measured materials through analyze, both diffuse floors (addon/bench_measured.py).
+  artist   what the artist sees: every preview mode, the live preview and its latency, the
+           Principled approximation of the artist's material (addon/bench_artist.py).
 
 Times are medians over repeats in this one run; the machine is shared, so compare ratios.
 """
@@ -23,7 +25,7 @@ import time
 
 import numpy as np
 
-ALL_SECTIONS = ("closed", "tables", "memory", "fits", "edit", "preview", "measured")
+ALL_SECTIONS = ("closed", "tables", "memory", "fits", "edit", "preview", "measured", "artist")
 EXTRA_SECTIONS = ("edit-legacy",)  # run only when asked for with --only
 
 
@@ -565,6 +567,12 @@ def _bench_measured(quick):
     return bench_measured(quick)
 
 
+def _bench_artist(quick):
+    from .bench_artist import bench_artist
+
+    return bench_artist(quick)
+
+
 def main(args):
     sections = args.only or ALL_SECTIONS
     unknown = set(sections) - set(ALL_SECTIONS) - set(EXTRA_SECTIONS)
@@ -576,6 +584,7 @@ def main(args):
         lines = {"closed": lambda: bench_closed(args.quick), "tables": lambda: bench_tables(args.quick),
                  "memory": bench_memory, "fits": lambda: bench_fits(args.quick),
                  "edit": lambda: bench_edit(args.quick), "edit-legacy": lambda: bench_edit_legacy(args.quick),
-                 "preview": lambda: _bench_preview(args.quick), "measured": lambda: _bench_measured(args.quick)}[name]()
+                 "preview": lambda: _bench_preview(args.quick), "measured": lambda: _bench_measured(args.quick),
+                 "artist": lambda: _bench_artist(args.quick)}[name]()
         print("\n".join(lines) + "\n", flush=True)
     return 0

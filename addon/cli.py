@@ -333,7 +333,8 @@ def build_parser():
 
     sb = sub.add_parser("bench", help="benchmark tables (run time against error)")
     sb.add_argument("--quick", action="store_true", help="fewer repetitions and views")
-    sb.add_argument("--only", nargs="*", help="sections to run (closed, tables, memory, fits, edit, preview, measured)")
+    sb.add_argument("--only", nargs="*", help="sections to run (closed, tables, memory, fits, edit, preview, "
+                                              "measured, artist)")
     sb.set_defaults(func=cmd_bench)
     return p
 

@@ -2,7 +2,7 @@
 whose Python has no matplotlib (Debian's 3.4). Three stacked charts share the θo axis
 (0 to 90°): energy α per channel with the fitted spline, mean μθ with the fitted line
 μ̃ θo, and the average variance with the fitted constant σ̃². Dashed curves are the
-edited material, when there is one. The panel prints the axis ranges beside the image.
+edited material, when there is one. Titles, ticks, the θo axis and a legend are drawn in.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ class Canvas:
         xs, ys = np.concatenate(xs), np.concatenate(ys)
         if dashed:
             s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(xs), np.diff(ys)))])
-            keep = (s // 5) % 2 == 0
+            keep = (s // 12) % 2 == 0      # 12 px dashes: legible at full size
             xs, ys = xs[keep], ys[keep]
         self.dot(xs, ys, colour, radius=width / 2)
 
@@ -98,33 +98,57 @@ def energy_spline(theta, fit, channel_fit=None):
     return out
 
 
-def profile_plot(prof, fit=None, edited=None, width=480, height=420):
-    """RGBA float32 (height, width, 4), row 0 at the top; and the y ranges of the three charts."""
+TEXT = (0.85, 0.85, 0.85)
+
+
+def _tick(v):
+    return f"{v:.3g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.2e}"
+
+
+def profile_plot(prof, fit=None, edited=None, width=900, height=780):
+    """RGBA float32 (height, width, 4), row 0 at the top; and the y ranges of the three charts.
+
+    Titles, y ticks, the θo axis and a legend are drawn into the image (``plot_font``);
+    measured curves are thick and solid, edited ones thick and dashed, fits thin and solid
+    (orange where the curve is one channel: the mean and the variance)."""
+    from .plot_font import ADVANCE, draw_text, text_width
+
     c = Canvas(width, height)
+    s = max(1, int(round(width / 450)))           # text scale: 5x7 glyphs at 2x on the 900-wide plot
+    line_h = 9 * s
     theta = np.asarray(prof.theta_o, float)
     fine = np.linspace(0.0, math.radians(89.0), 180)
-    margin, gap = 8, 10
-    chart_h = (height - 2 * margin - 2 * gap) // 3
-    x0, x1 = margin, width - margin - 1
+    left, right, top_margin, gap = 8 * ADVANCE * s + 8, 10, 3 * line_h + 6, line_h + 14
+    bottom_margin = 2 * line_h + 10
+    chart_h = (height - top_margin - bottom_margin - 2 * gap) // 3
+    x0, x1 = left, width - right - 1
     charts = []
 
     def var_avg(p):
         return 0.5 * (np.asarray(p["avg"]["sigma_tt"], float) + np.asarray(p["avg"]["sigma_pp"], float))
 
     series = [
-        ("energy", [(prof[ch]["alpha"], CHANNEL_COLOURS[ch]) for ch in "rgb"],
+        ("energy", "energy α (r, g, b)", [(prof[ch]["alpha"], CHANNEL_COLOURS[ch]) for ch in "rgb"],
          [(np.asarray(edited[ch]["alpha"], float), CHANNEL_COLOURS[ch]) for ch in "rgb"] if edited else [],
          [(energy_spline(fine, fit, (fit.get("channels") or {}).get(ch)), CHANNEL_COLOURS[ch]) for ch in "rgb"]
          if fit else [], False),
-        ("mean", [(prof["avg"]["mu_theta"], CHANNEL_COLOURS["avg"])],
+        ("mean", "mean μθ (rad), fit μ~ θo", [(prof["avg"]["mu_theta"], CHANNEL_COLOURS["avg"])],
          [(edited["avg"]["mu_theta"], CHANNEL_COLOURS["avg"])] if edited else [],
          [(fit["mu_slope"] * fine, FIT_COLOUR)] if fit and fit.get("mu_slope") is not None else [], True),
-        ("variance", [(var_avg(prof), CHANNEL_COLOURS["avg"])],
+        ("variance", "variance (σθ² + σφ²)/2 (rad²), fit σ~²", [(var_avg(prof), CHANNEL_COLOURS["avg"])],
          [(var_avg(edited), CHANNEL_COLOURS["avg"])] if edited else [],
          [(np.full_like(fine, fit["sigma2"]), FIT_COLOUR)] if fit and fit.get("sigma2") is not None else [], True),
     ]
-    for k, (name, measured, edit_curves, fitted, zero) in enumerate(series):
-        top = margin + k * (chart_h + gap)
+    # legend, on top: the three styles
+    lx, ly = x0, 6
+    for label, dashed, w, colour in (("measured", False, 2.0 * s, TEXT), ("edited", True, 2.0 * s, TEXT),
+                                     ("fit (thin)", False, 1.0 * s, FIT_COLOUR)):
+        c.clip = (0, 0, width - 1, height - 1)
+        c.polyline(np.array([lx, lx + 36 * s]), np.array([ly + line_h // 2] * 2), colour, width=w, dashed=dashed)
+        draw_text(c.px, lx + 40 * s, ly, label, TEXT, s)
+        lx += 40 * s + text_width(label, s) + 24 * s
+    for k, (name, title, measured, edit_curves, fitted, zero) in enumerate(series):
+        top = top_margin + k * (chart_h + gap)
         bottom = top + chart_h
         lo, hi = _range([m for m, _ in measured] + [e for e, _ in edit_curves], include_zero=zero)
         charts.append((name, lo, hi))
@@ -132,18 +156,34 @@ def profile_plot(prof, fit=None, edited=None, width=480, height=420):
         def px(t, v):
             return x0 + (np.asarray(t) / math.radians(90.0)) * (x1 - x0), bottom - (np.asarray(v, float) - lo) / (hi - lo) * (bottom - top)
 
+        c.clip = (0, 0, width - 1, height - 1)
+        draw_text(c.px, x0, top - line_h - 2, title, TEXT, s)
         for deg in (15, 30, 45, 60, 75):  # vertical grid every 15 degrees
             gx = int(round(px(math.radians(deg), lo)[0]))
             c.px[top:bottom, gx] = GRID
         if lo < 0.0 < hi:
             gy = int(round(px(0.0, 0.0)[1]))
             c.px[gy, x0:x1] = GRID
+        for v in (lo, 0.5 * (lo + hi), hi):       # y ticks: bottom, middle, top
+            gy = int(round(px(0.0, v)[1]))
+            c.px[gy, x0 - 4:x0] = FRAME
+            label = _tick(v)
+            draw_text(c.px, x0 - 6 - text_width(label, s), min(max(gy - 3 * s, 0), height - 7 * s), label, TEXT, s)
         c.rect(x0, top, x1, bottom, FRAME)
         c.clip = (x0 + 1, top + 1, x1 - 1, bottom - 1)
         for values, colour in fitted:
-            c.polyline(*px(fine, values), FIT_COLOUR if name != "energy" else colour, width=1.0, dashed=False)
+            c.polyline(*px(fine, values), FIT_COLOUR if name != "energy" else colour, width=1.0 * s, dashed=False)
         for values, colour in measured:
-            c.polyline(*px(theta, values), colour, width=2.0)
+            c.polyline(*px(theta, values), colour, width=2.0 * s)
         for values, colour in edit_curves:
-            c.polyline(*px(np.asarray(edited.theta_o, float), values), colour, width=2.0, dashed=True)
+            c.polyline(*px(np.asarray(edited.theta_o, float), values), colour, width=2.0 * s, dashed=True)
+        if k == len(series) - 1:                  # the shared θo axis under the last chart
+            c.clip = (0, 0, width - 1, height - 1)
+            for deg in (0, 15, 30, 45, 60, 75, 90):
+                gx = int(round(px(math.radians(deg), lo)[0]))
+                c.px[bottom:bottom + 4, gx] = FRAME
+                label = f"{deg}"
+                draw_text(c.px, gx - text_width(label, s) // 2, bottom + 6, label, TEXT, s)
+            axis = "view elevation θo (degrees)"
+            draw_text(c.px, (x0 + x1 - text_width(axis, s)) // 2, bottom + 8 + line_h, axis, TEXT, s)
     return c.px, charts

@@ -4,26 +4,47 @@ groups before the types that point to them, operators before the panels that dra
 import bpy
 
 from . import panel, state
-from ..operators import analyse, apply_edit, build_preview, export, load_merl, reset_sliders
+from ..operators import analyse, apply_edit, build_preview, export, load_merl, reset_sliders, restore_material, show_image
 
 OPERATORS = (
     load_merl.BRDFMOMENTS_OT_load_merl,
     analyse.BRDFMOMENTS_OT_analyse,
     reset_sliders.BRDFMOMENTS_OT_reset_sliders,
     apply_edit.BRDFMOMENTS_OT_apply_edit,
+    restore_material.BRDFMOMENTS_OT_restore_material,
     export.BRDFMOMENTS_OT_export,
     build_preview.BRDFMOMENTS_OT_build_preview,
+    show_image.BRDFMOMENTS_OT_show_image,
 )
 CLASSES = (*state.CLASSES, *OPERATORS, *panel.CLASSES)
+
+
+@bpy.app.handlers.persistent
+def _file_loaded(*_args):
+    """A reopened .blend: plots redrawn from the stored profiles, OSL edits find their texture."""
+    from . import material
+
+    for mat in bpy.data.materials:
+        st = getattr(mat, "brdf_moments", None)
+        if st is not None and st.analysed and st.profiles_data:
+            try:
+                state.plot_image(mat)
+            except (ValueError, RuntimeError):
+                pass
+    material.relink_textures()
 
 
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     state.attach()
+    if _file_loaded not in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.append(_file_loaded)
 
 
 def unregister():
+    if _file_loaded in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_file_loaded)
     state.detach()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

@@ -13,6 +13,17 @@ import numpy as np
 from .core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE
 from .core.moments import CHANNELS, PROFILE_KEYS
 
+MU_MIN, MU_MAX = -2.0, 0.0
+SIGMA2_MIN, SIGMA2_MAX = 1e-8, math.pi ** 2 / 12
+
+
+def clamp_mu(v):
+    return min(max(float(v), MU_MIN), MU_MAX)
+
+
+def clamp_sigma2(v):
+    return min(max(float(v), SIGMA2_MIN), SIGMA2_MAX)
+
 
 def pack_profiles(prof) -> str:
     arr = np.stack([np.stack([prof[ch][k] for k in PROFILE_KEYS]) for ch in CHANNELS]).astype("<f4")
@@ -52,7 +63,10 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
                ("robust", "Robust", "the 5th percentile by area of the slice's cells within 70° of the normal: "
                                     "one low grazing cell of a measured table cannot set it")])
     profiles_data: bpy.props.StringProperty(options={"HIDDEN"})
-    kd: bpy.props.FloatVectorProperty(name="kd", size=3, subtype="COLOR", min=0.0, soft_max=1.0)
+    kd: bpy.props.FloatVectorProperty(name="kd", size=3, min=0.0, soft_max=1.0, precision=4)
+    kd_albedo: bpy.props.FloatVectorProperty(
+        name="Diffuse albedo", size=3, subtype="COLOR", description="π·kd, the diffuse part's albedo (read-only)",
+        get=lambda self: [min(max(math.pi * v, 0.0), 1.0) for v in self.kd])
     fit_alpha_b: bpy.props.FloatProperty(name="α̃b")
     fit_theta0: bpy.props.FloatProperty(name="θ0", subtype="ANGLE")
     fit_theta1: bpy.props.FloatProperty(name="θ1", subtype="ANGLE")
@@ -73,9 +87,12 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
                                           update=lambda self, ctx: _slider_moved(self))
     grazing_boost: bpy.props.FloatProperty(name="Grazing boost", default=1.0, min=0.0, soft_max=4.0,
                                            update=lambda self, ctx: _slider_moved(self))
-    mu_slope: bpy.props.FloatProperty(name="Mean slope μ̃", default=-0.5, min=-1.0, max=0.0,
+    # Hard ranges wide enough for every fitted value (measured mu goes below -1); the soft
+    # range is what a drag covers.
+    mu_slope: bpy.props.FloatProperty(name="Mean slope μ̃", default=-0.5, min=MU_MIN, max=MU_MAX, soft_min=-1.5,
+                                      soft_max=0.0, precision=3,
                                       update=lambda self, ctx: _slider_moved(self))
-    sigma2: bpy.props.FloatProperty(name="Variance σ̃²", default=0.1, min=1e-6, max=math.pi ** 2 / 12,
+    sigma2: bpy.props.FloatProperty(name="Variance σ̃²", default=0.1, min=SIGMA2_MIN, max=SIGMA2_MAX, precision=5,
                                     update=lambda self, ctx: _slider_moved(self))
     lock: bpy.props.BoolProperty(name="Follow correlation", default=False, update=lambda self, ctx: _slider_moved(self),
                                  description="move the variance with the mean slope along the correlation quadratic")
@@ -94,12 +111,23 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     plot_caption: bpy.props.StringProperty(options={"HIDDEN"})  # the plot's y ranges, one chart a line
     preview_material: bpy.props.StringProperty(options={"HIDDEN"})  # the edited sphere's material
     preview_path: bpy.props.EnumProperty(name="Preview path", default="AUTO", items=[
-        ("AUTO", "Auto", "OSL where this Cycles has it, else baked"),
-        ("OSL", "OSL", "Cycles OSL shader: moment model or tabulated"),
+        ("AUTO", "Auto", "the baked path (the accurate one); OSL on request"),
+        ("OSL", "OSL", "Cycles OSL shader (noisier at the same time)"),
         ("BAKED", "Baked", "numpy radiance per texel through an Emission shader (any engine)")])
-    preview_mode: bpy.props.EnumProperty(name="OSL mode", default="MODEL", items=[
-        ("MODEL", "Moment model", "only the fitted parameters: slider drags update the shader live"),
-        ("TABULATED", "Tabulated", "the edited MERL table as a float texture, sampled with the moment lobe")])
+    preview_mode: bpy.props.EnumProperty(name="Preview", default="TABULATED", items=[
+        ("TABULATED", "Tabulated", "the edited table itself (the material)"),
+        ("MODEL", "Sketch (moment model)",
+         "a statistical summary of the fits (paper Eq. 7), not the material: drags update it live")])
+    artist_shader: bpy.props.EnumProperty(name="Shader", default="AUTO", items=[
+        ("AUTO", "Auto", "OSL tabulated where the scene renders with Cycles OSL, else the Principled approximation"),
+        ("PRINCIPLED", "Principled (approx.)", "a Principled BSDF fitted to the edited table: any engine"),
+        ("OSL", "OSL tabulated", "the edited table itself, read by an OSL shader (Cycles with OSL)"),
+        ("NONE", "Leave material", "Apply does not touch the material's nodes")])
+    texture_storage: bpy.props.EnumProperty(name="Table texture", default="PACK", items=[
+        ("PACK", "Packed in .blend", "the OSL table texture is packed into the .blend"),
+        ("BESIDE", "Next to .blend", "the OSL table texture is written next to the saved .blend (//brdf_moments/)")])
+    principled_data: bpy.props.StringProperty(options={"HIDDEN"})    # the last Principled fit (JSON)
+    artist_shader_used: bpy.props.StringProperty(options={"HIDDEN"})  # "principled" / "osl" / ""
     preview_env: bpy.props.StringProperty(
         name="Environment", default="",
         description="a bundled HDRI name (empty: the default studio light) or an .exr/.hdr file of your own")
@@ -108,7 +136,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         name="Scale albedo to 1", default=False,
         description="scale the edited material down so that it reflects no more light than it receives")
 
-    def store_analysis(self, prof, fit):
+    def store_analysis(self, prof, fit, keep_sliders=False):
         self.profiles_data = pack_profiles(prof)
         self.kd = [float(v) for v in prof.kd]
         self.analysed = True
@@ -121,11 +149,25 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         chans = fit.get("channels") or {}
         self.fit_channels = [float(chans.get(c, {}).get(k) or 0.0) for k in ("alpha_b", "alpha1", "m1") for c in "rgb"]
         self.fit_notes = "; ".join(fit.get("notes", []))
-        # Sliders start at the fitted values (clamped to their ranges).
+        # Sliders start at the fitted values (their ranges hold every fitted value).
+        if keep_sliders:
+            return
         if fit.get("mu_slope") is not None:
-            self.mu_slope = min(max(fit["mu_slope"], -1.0), 0.0)
+            self.mu_slope = clamp_mu(fit["mu_slope"])
         if fit.get("sigma2") is not None:
-            self.sigma2 = min(max(fit["sigma2"], 1e-6), math.pi ** 2 / 12)
+            self.sigma2 = clamp_sigma2(fit["sigma2"])
+
+    def principled_fit(self):
+        """The Principled BSDF fitted to the last edited table, or None."""
+        import json
+
+        from .core.principled import PrincipledFit
+
+        if not self.principled_data:
+            return None
+        d = json.loads(self.principled_data)
+        return PrincipledFit(tuple(d["base_color"]), d["metallic"], d["roughness"], d["specular"], d["error"],
+                             d["albedo_error"])
 
     def profiles(self):
         return unpack_profiles(self.profiles_data) if self.profiles_data else None
@@ -159,16 +201,16 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def reset_sliders(self):
         self.strength, self.colour, self.grazing_boost = 1.0, (1.0, 1.0, 1.0), 1.0
-        self.mu_slope = min(max(self.fit_mu_slope, -1.0), 0.0)
-        self.sigma2 = min(max(self.fit_sigma2, 1e-6), math.pi ** 2 / 12)
+        self.mu_slope = clamp_mu(self.fit_mu_slope)
+        self.sigma2 = clamp_sigma2(self.fit_sigma2)
         self.lock = False
 
     def slider_targets(self):
         """The sliders as engine targets; a slider still at its fitted value stays exact."""
         from .core.edit import EditTargets
 
-        at_fit_mu = abs(self.mu_slope - min(max(self.fit_mu_slope, -1.0), 0.0)) < 1e-6
-        at_fit_s2 = abs(self.sigma2 - min(max(self.fit_sigma2, 1e-6), math.pi ** 2 / 12)) < 1e-7
+        at_fit_mu = abs(self.mu_slope - clamp_mu(self.fit_mu_slope)) < 1e-6
+        at_fit_s2 = abs(self.sigma2 - clamp_sigma2(self.fit_sigma2)) <= 1e-7 * max(self.fit_sigma2, 1e-6)
         return EditTargets(strength=self.strength, colour=tuple(self.colour), grazing_boost=self.grazing_boost,
                            mu_slope=None if at_fit_mu and not self.lock else self.mu_slope,
                            sigma2=None if at_fit_s2 or self.lock else self.sigma2,
@@ -182,9 +224,15 @@ def _floor_changed(state):
 
 
 def _slider_moved(state):
-    """OSL moment-model preview: a slider drag only rewrites the edited sphere's node inputs
-    (no re-synthesis, no bake). Other previews wait for Apply / Build Preview."""
-    if not state.analysed or not state.preview_material:
+    """A slider moved: the panel's preview image follows (one synthesis round and a quick bake,
+    in a thread: ``live``); an OSL sketch preview scene only gets new node inputs."""
+    if not state.analysed:
+        return
+    if state.preview_mode == "TABULATED":
+        from . import live
+
+        live.slider_moved(state.id_data)
+    if not state.preview_material:
         return
     mat = bpy.data.materials.get(state.preview_material)
     if mat is None or mat.get("brdfm_path") != "osl" or mat.get("brdfm_mode") != "model":
@@ -197,8 +245,12 @@ def _slider_moved(state):
         pass  # the preview was rebuilt as another kind since: nothing to update
 
 
-def plot_image(mat, prof=None, fit=None, edited=None, width=480, height=420):
-    """The panel's profile plot for ``mat``: a float image named after the material."""
+PLOT_SIZE = (900, 780)
+
+
+def plot_image(mat, prof=None, fit=None, edited=None, width=PLOT_SIZE[0], height=PLOT_SIZE[1]):
+    """The panel's profile plot for ``mat``: an image named after the material, kept in the
+    .blend (fake user; redrawn from the stored profiles when a file is opened)."""
     from .plot_image import profile_plot
 
     state = mat.brdf_moments
@@ -216,6 +268,7 @@ def plot_image(mat, prof=None, fit=None, edited=None, width=480, height=420):
         img = bpy.data.images.new(name, width, height, alpha=True, float_buffer=False)
     img.pixels.foreach_set(np.ascontiguousarray(px[::-1]).ravel())  # Blender's rows start at the bottom
     img.update()
+    img.use_fake_user = True
     if hasattr(img, "preview_ensure"):
         img.preview_ensure()
         img.preview.reload()

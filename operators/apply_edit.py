@@ -5,9 +5,28 @@ import json
 import os
 
 import bpy
+import numpy as np
 
+from ..addon import material as artist
 from ..addon.jobs import BackgroundJob
 from .common import analysed_material
+
+
+def resolve_artist_shader(context, choice):
+    """'principled', 'osl' or None for the artist's material, from the panel's choice."""
+    from ..addon.preview.osl import osl_available
+
+    if choice == "NONE":
+        return None
+    if choice == "PRINCIPLED":
+        return "principled"
+    ok = osl_available()[0]
+    if choice == "OSL":
+        return "osl" if ok else "principled"     # a .blend made where OSL was: the approximation here
+    scene = context.scene
+    osl_scene = scene is not None and scene.render.engine == "CYCLES" and bool(
+        getattr(getattr(scene, "cycles", None), "shading_system", False))
+    return "osl" if ok and osl_scene else "principled"
 
 
 def edits_folder():
@@ -43,6 +62,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         targets = state.slider_targets()
         scale = state.scale_to_one
         floor = state.floor
+        shader = resolve_artist_shader(context, state.artist_shader)
         # Content-addressed output: the same file and sliders give the same name, and an
         # edit never overwrites another material's table (or the input).
         st = os.stat(source)
@@ -71,9 +91,20 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             if res.profiles is None or scale:
                 res.profiles = compute_profiles(res.table, prof.theta_o, kd=prof.kd if prof.split else None,
                                                 split=prof.split)
+            principled = texture = None
+            if shader == "principled":
+                from ..addon.core.principled import fit_principled
+
+                principled = fit_principled(res.table)
+            elif shader == "osl":
+                from ..addon.preview.osl import table_texture_pixels
+
+                kd = res.profiles.kd
+                values = np.where(res.table.valid, res.table.rho, np.asarray(kd, float)[:, None]).T
+                texture = table_texture_pixels(values, kd)
             report_progress(10, 10)
             res.table = None  # written to `out`; not sent back from the worker process (100 MB)
-            return out, res, prof, fit
+            return out, res, prof, fit, principled, texture
 
         return work
 
@@ -82,7 +113,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
 
         from ..addon.state import pack_profiles, plot_image
 
-        out, res, prof, fit = result
+        out, res, prof, fit, principled, texture = result
         mat = bpy.data.materials[self._mat_name]
         state = mat.brdf_moments
         state.edited_path = out
@@ -93,8 +124,19 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         state.max_albedo = [finite(v) for v in res.max_albedo]
         state.edit_warnings = "\n".join(res.warnings)
         plot_image(mat, prof, fit, res.profiles)
+        note = ""
+        if principled is not None:
+            state.principled_data = json.dumps(principled.as_dict())
+            artist.apply_principled(mat, principled)
+            state.artist_shader_used = "principled"
+            note = (f"; '{mat.name}' now renders a Principled approximation "
+                    f"(error {100 * principled.error:.1f} %)")
+        elif texture is not None:
+            artist.apply_osl(mat, texture, res, context.scene)
+            state.artist_shader_used = "osl"
+            note = f"; '{mat.name}' now renders the edited table (OSL)"
         level = {"WARNING"} if res.warnings else {"INFO"}
         msg = (f"{mat.name}: reached μ̃ {state.achieved_mu_slope:+.3f} (target {res.target_mu_slope:+.3f}), "
                f"σ̃² {state.achieved_sigma2:.4f} (target {res.target_sigma2:.4f}), "
                f"largest albedo {max(state.max_albedo):.3f}")
-        self.report(level, msg + ("; " + "; ".join(res.warnings) if res.warnings else ""))
+        self.report(level, msg + note + ("; " + "; ".join(res.warnings) if res.warnings else ""))

@@ -1,28 +1,43 @@
-"""Build Preview: original and edited spheres side by side under an HDRI, in their own
-scene ("BRDF Moments Preview"), through the OSL shader or the baked path."""
+"""Build Preview: original and edited spheres side by side under an HDRI, as an image in the
+panel (and at full size in an Image Editor), without touching the artist's window.
+
+The spheres also live in their own scene ("BRDF Moments Preview": Cycles, OSL or baked), which
+the artist can render or open; Build Preview never switches the window to it.
+
+It runs as a job (progress, Esc cancels): the baked path's numpy bakes run off the main
+thread; the OSL path's Cycles render runs on the main thread after them (bpy is not
+thread-safe). By default the spheres show the tables themselves; the moment model is offered
+only as a labelled sketch.
+"""
 
 import os
 
 import bpy
+import numpy as np
 
 from ..addon.core.limits import MAX_RENDER_SIZE, MAX_SAMPLES
+from ..addon.jobs import BackgroundJob
+from ..addon.live import FINAL_SAMPLES, label_image, preview_image_name, write_preview_image
 from .common import analysed_material
 
 SCENE = "BRDF Moments Preview"
+BAKE_SAMPLES = FINAL_SAMPLES
 
 
-class BRDFMOMENTS_OT_build_preview(bpy.types.Operator):
-    """Render original and edited on spheres: OSL (live sliders in moment-model mode) or baked"""
+class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
+    """Render original and edited on labelled spheres into an image (Esc cancels)"""
 
     bl_idname = "brdf_moments.build_preview"
     bl_label = "Build Preview"
     bl_options = {"REGISTER", "UNDO"}
+    job_label = "Preview"
 
     material: bpy.props.StringProperty(name="Material", description="source material (default: active)")
     path: bpy.props.EnumProperty(name="Path", default="AUTO", items=[
         ("AUTO", "Auto", "OSL where this Cycles has it, else baked"), ("OSL", "OSL", ""), ("BAKED", "Baked", "")])
-    mode: bpy.props.EnumProperty(name="OSL mode", default="MODEL", items=[
-        ("MODEL", "Moment model", ""), ("TABULATED", "Tabulated", "")])
+    mode: bpy.props.EnumProperty(name="Shows", default="TABULATED", items=[
+        ("TABULATED", "Tabulated", "the tables themselves"),
+        ("MODEL", "Sketch (moment model)", "the fits' moment model (paper Eq. 7): a sketch, not the material")])
     env: bpy.props.StringProperty(name="Environment", description="bundled HDRI name or file (empty: default)")
     size: bpy.props.IntProperty(name="Size", default=256, min=16, max=MAX_RENDER_SIZE,
                                 description="sphere size in pixels; the render is two spheres wide")
@@ -31,66 +46,133 @@ class BRDFMOMENTS_OT_build_preview(bpy.types.Operator):
                                         description="also render a still here (.png display-referred, .exr linear)")
     use_panel_settings: bpy.props.BoolProperty(default=False, options={"HIDDEN"})
 
-    def execute(self, context):
-        from ..addon.core.safeio import run_scope
-
-        try:
-            with run_scope():  # the map and tables read here are never written over
-                info = self._build(context)
-        except (OSError, ValueError, RuntimeError, ArithmeticError, MemoryError) as exc:
-            self.report({"ERROR"}, str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
-            return {"CANCELLED"}
-        self.report({"INFO"}, info)
-        return {"FINISHED"}
-
-    def _build(self, context):
+    def start(self, context):
         from ..addon.core.cachefs import check_sealed
         from ..addon.core.limits import check_int
         from ..addon.core.merl import read_merl
         from ..addon.core.nbrdf import read_table, source_exists, source_file
         from ..addon.core.safeio import guard_output
-        from ..addon.preview import build_preview, render_still
+        from ..addon.core.render import TableBRDF, sphere_layout
+        from ..addon.preview import bake_cache, load_environment, resolve_environment
+        from ..addon.preview.build import resolve_path
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
         if self.use_panel_settings:
             self.path, self.mode, self.env, self.size = (state.preview_path, state.preview_mode, state.preview_env,
                                                          state.preview_size)
-        path, mode = self.path.lower(), self.mode.lower()
+        from ..addon.preview import OSLUnavailable
+
+        try:
+            # Auto is the baked path: the accurate one (OSL tabulated is noisier at the same time)
+            path = resolve_path("baked" if self.path == "AUTO" else self.path.lower())
+        except OSLUnavailable as exc:
+            raise ValueError(str(exc)) from None
+        mode = self.mode.lower()
+        sketch = mode == "model"
         size = check_int(self.size, "Size", 16, MAX_RENDER_SIZE)  # a script may set any int
-        samples = check_int(self.samples, "Samples", 1, MAX_SAMPLES)
-        if self.render_to:
-            env_file = bpy.path.abspath(self.env) if self.env and os.path.splitext(self.env)[1] else None
-            guard_output(bpy.path.abspath(self.render_to), [source_file(bpy.path.abspath(state.source_path)), state.edited_path,
-                                                            env_file])
-        source = bpy.path.abspath(state.source_path)
-        live = mode == "model" and path in ("osl", "auto")
-        if source_exists(source):
-            original = read_table(source)  # a MERL file, or FILE:NAME of a network
-        elif live or path == "baked":
-            original = state.model_params()  # the .blend outlived its MERL file: the fitted model stands in
-        else:
-            raise ValueError(f"{source}: the source MERL file is missing; load it again for a tabulated preview")
-        # The edited sphere: the re-synthesized table if Apply made one, else the sliders'
-        # moment model (what the OSL model path renders live anyway).
-        if state.edited_path and os.path.isfile(state.edited_path) and not live:
-            check_sealed(state.edited_path, "edited table (Apply's cache)")
-            edited = read_merl(state.edited_path)
-        else:
-            edited = state.model_params(edited=True)
+        self._samples = check_int(self.samples, "Samples", 1, MAX_SAMPLES)
+        source = bpy.path.abspath(state.source_path)  # a MERL file, or FILE:NAME of a network
+        edited_path = state.edited_path if state.edited_path and os.path.isfile(state.edited_path) else ""
+        if edited_path:
+            check_sealed(edited_path, "edited table (Apply's cache)")
+        have_source = source_exists(source)
+        if not sketch and not have_source:
+            raise ValueError(f"{source}: the source MERL file is missing; load it again, or preview the sketch")
+        prof, eprof = state.profiles(), state.edited_profiles()
+        params, eparams = state.model_params(), state.model_params(edited=True)
+        env_path = resolve_environment(self.env or None)
+        if self.render_to:  # refused now, before any work: the still may not replace an input
+            guard_output(bpy.path.abspath(self.render_to), [source_file(source), edited_path, env_path])
+        env = load_environment(env_path) if path == "baked" else None      # bpy: main thread
+        layout = sphere_layout(2 * size, size, 2)
+        cache = bake_cache()
+        notes = []
+        if not sketch and not edited_path:
+            notes.append("no edit applied yet: both spheres show the original table")
+        self._job = dict(mat=mat.name, path=path, mode=mode, env_path=env_path, layout=layout, notes=notes,
+                         labels=["original", "edited"] + (["(sketch)"] if sketch else []))
+
+        def work(report_progress):
+            if sketch:
+                srcs = [params, eparams]
+            else:
+                orig = TableBRDF(read_table(source), prof)
+                srcs = [orig, TableBRDF(read_merl(edited_path), eprof) if edited_path else orig]
+            report_progress(1, 4)
+            if path == "baked":
+                from ..addon.preview.build import brdf_of
+
+                for k, src in enumerate(srcs):
+                    cache.get(brdf_of(src), env, layout.diameter, BAKE_SAMPLES)
+                    report_progress(2 + k, 4)
+            report_progress(4, 4)
+            return srcs
+
+        return work
+
+    def finish(self, context, srcs):
+        try:
+            self._finish(context, srcs)
+        except RuntimeError as exc:       # Cycles could not render, OSL could not load: a report
+            raise ValueError(str(exc).strip() or type(exc).__name__) from None
+
+    def _finish(self, context, srcs):
+        from ..addon.preview import build_preview, render_still
+        from ..addon.preview.build import bake_cache, brdf_of
+
+        job = self._job
+        mat = bpy.data.materials[job["mat"]]
+        state = mat.brdf_moments
+        layout = job["layout"]
         scene = bpy.data.scenes.get(SCENE) or bpy.data.scenes.new(SCENE)
-        info = build_preview(scene, original, edited, path=path, mode=mode, env=self.env or None,
-                             size=(2 * size, size),
-                             samples=samples,
-                             profiles=[state.profiles() if original is not None and hasattr(original, "rho") else None,
-                                       state.edited_profiles() if hasattr(edited, "rho") else None])
+        # The scene is built (and re-baked from the cache the job filled) but never shown in
+        # the artist's window: the result goes into an image.
+        info = build_preview(scene, srcs[0], srcs[1], path=job["path"], mode=job["mode"], env=job["env_path"],
+                             size=(layout.width, layout.height), samples=self._samples, bake_samples=BAKE_SAMPLES)
         state.preview_material = info.materials[-1]
-        if context.window is not None and not bpy.app.background:
-            context.window.scene = scene  # show it; the user's own scene is untouched
-        text = f"Preview ({info.path}{', ' + info.mode if info.path == 'osl' else ''}) in scene '{SCENE}'"
+        if job["path"] == "baked":
+            from ..addon.preview import load_environment
+
+            env = load_environment(job["env_path"])
+            tiles = []
+            for src in srcs:
+                rgb, cov, _ = bake_cache().get(brdf_of(src), env, layout.diameter, BAKE_SAMPLES)
+                tiles.append(np.dstack([rgb * cov[..., None], cov]))
+            rgba = layout.compose(tiles)
+        else:
+            import tempfile
+
+            from ..addon.preview.osl import cache_dir
+
+            os.makedirs(cache_dir(), exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix="preview-", suffix=".exr", dir=cache_dir())
+            os.close(fd)
+            try:
+                render_still(scene, tmp, quiet=True)
+                img = bpy.data.images.load(tmp)
+                try:
+                    w, h = img.size
+                    buf = np.empty(w * h * 4, np.float32)
+                    img.pixels.foreach_get(buf)
+                finally:
+                    bpy.data.images.remove(img)
+                rgba = buf.reshape(h, w, 4)[::-1].copy()
+            finally:
+                os.remove(tmp)
+        labels = job["labels"]
+        if len(labels) == 3:
+            labels = [f"{labels[0]} {labels[2]}", f"{labels[1]} {labels[2]}"]
+        write_preview_image(mat, label_image(rgba, layout, labels))
+        what = "sketch (moment model)" if job["mode"] == "model" else "tabulated"
+        text = f"Preview ({info.path}, {what}) in the image '{preview_image_name(mat)}'"
         if self.render_to:
+            from ..addon.core.nbrdf import source_file
+            from ..addon.core.safeio import guard_output
+
             out = bpy.path.abspath(self.render_to)
-            guard_output(out, [info.environment])  # the map, the tables: inputs of this run
+            guard_output(out, [info.environment, source_file(bpy.path.abspath(state.source_path)),
+                               state.edited_path])  # checked again: the map, the tables are inputs
             render_still(scene, out)
             text += f", rendered to {out}"
-        return text + "".join(f"; {n}" for n in info.notes)
+        self.report({"INFO"}, text + "".join(f"; {n}" for n in info.notes + job["notes"]))

@@ -59,10 +59,14 @@ def store_analysis(mat, path, result) -> str:
 
     name, prof, fit = result
     state = mat.brdf_moments
+    # Analysing the same file again keeps the last edit and the sliders; another file starts afresh.
+    again = state.analysed and bpy.path.abspath(state.source_path) == bpy.path.abspath(path)
     state.source_path = path
-    state.store_analysis(prof, fit)
-    state.edited_path = ""
-    state.edited_profiles_data = ""
-    state.edit_warnings = ""
-    plot_image(mat, prof, fit, edited=False)
+    state.store_analysis(prof, fit, keep_sliders=again)
+    if not again:
+        state.edited_path = ""
+        state.edited_profiles_data = ""
+        state.edit_warnings = ""
+        state.principled_data = ""
+    plot_image(mat, prof, fit, edited=None if again else False)
     return f"Analysed {name}: μ̃ {state.fit_mu_slope:+.3f}, σ̃² {state.fit_sigma2:.4f}"

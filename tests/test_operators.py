@@ -55,7 +55,7 @@ def test_reset_sliders_returns_to_the_fit(analysed):
     state = mat.brdf_moments
     state.mu_slope, state.sigma2, state.strength = -0.2, 0.3, 2.0
     assert bpy.ops.brdf_moments.reset_sliders(material="Rough") == {"FINISHED"}
-    assert state.mu_slope == pytest.approx(min(max(state.fit_mu_slope, -1), 0), abs=1e-6)
+    assert state.mu_slope == pytest.approx(min(max(state.fit_mu_slope, -2), 0), abs=1e-6)
     assert state.sigma2 == pytest.approx(state.fit_sigma2, rel=1e-6)
     assert state.strength == 1.0
 
@@ -179,8 +179,8 @@ def test_every_operator_is_undo_aware(blender):
 
     reg = sys.modules["bl_ext.bmtest.brdf_moments.addon.registration"]
     for op in reg.OPERATORS:
-        if op.bl_idname == "brdf_moments.export":
-            continue  # writes files only: nothing in the .blend to undo
+        if op.bl_idname in {"brdf_moments.export", "brdf_moments.show_image"}:
+            continue  # writes files / changes what a window shows: nothing in the .blend to undo
         assert "UNDO" in op.bl_options, op.bl_idname
 
 
@@ -199,6 +199,26 @@ def test_build_preview_baked_renders_original_and_edited(analysed, tmp_path):
     img = bpy.data.images.load(str(out))
     assert tuple(img.size) == (48, 24)
     assert [s.name for s in bpy.data.scenes if s.name != "BRDF Moments Preview"]  # the user's scene is kept
+    # the panel's image is what the spheres' Emission shows: the baked textures, composed
+    shown = bpy.data.images["BRDF Moments preview: Rough"]
+    assert tuple(shown.size) == (48, 24) and shown.use_fake_user
+    px = np.empty(48 * 24 * 4, np.float32)
+    shown.pixels.foreach_get(px)
+    px = px.reshape(24, 48, 4)[::-1]
+    from addon.core.render import sphere_layout
+
+    layout = sphere_layout(48, 24, 2)
+    mask = layout.interior_mask()
+    mask[:11] = False                       # rows under the labels (7 px glyphs from row 1, outlined)
+    for k, o in enumerate(sorted(spheres, key=lambda o: o.location.x)):
+        bake = o.material_slots[0].material.node_tree.nodes["BRDFM Bake"].image
+        tex = np.empty(bake.size[0] * bake.size[1] * 4, np.float32)
+        bake.pixels.foreach_get(tex)
+        tex = tex.reshape(bake.size[1], bake.size[0], 4)[::-1]
+        left = layout.lefts[k]
+        sub = mask[layout.top:layout.top + layout.diameter, left:left + layout.diameter]
+        np.testing.assert_allclose(px[layout.top:layout.top + layout.diameter, left:left + layout.diameter][sub, :3],
+                                   tex[sub, :3], rtol=1e-5, atol=1e-6)
 
 
 def test_slider_drag_updates_the_osl_preview_without_resynthesis(analysed, tmp_path):

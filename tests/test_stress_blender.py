@@ -38,7 +38,8 @@ def _ui_numbers(state):
 def _assert_ui_finite(bpy, mat):
     state = mat.brdf_moments
     assert all(math.isfinite(v) for v in _ui_numbers(state)), dict(zip(UI_FLOATS, _ui_numbers(state)))
-    assert -1.0 <= state.mu_slope <= 0.0 and np.float32(1e-6) <= state.sigma2 <= np.float32(math.pi ** 2 / 12)
+    # the slider ranges hold every fitted value (measured mu goes below -1)
+    assert -2.0 <= state.mu_slope <= 0.0 and np.float32(1e-8) <= state.sigma2 <= np.float32(math.pi ** 2 / 12)
     for text in (state.plot_caption, state.fit_notes, state.edit_warnings):
         assert "nan" not in text.lower().split() and "inf" not in text.lower().split(), text
     img = bpy.data.images.get(f"BRDF Moments plot: {mat.name}")
@@ -132,7 +133,7 @@ def test_apply_at_the_slider_limits_never_breaks_blender(fresh, tmp_path, stress
     state = mat.brdf_moments
     # Property limits clamp what a drag can set: these are the extremes a user can reach.
     state.mu_slope, state.sigma2, state.mode = 5.0, -1.0, "model"
-    assert state.mu_slope == 0.0 and state.sigma2 == pytest.approx(1e-6)
+    assert state.mu_slope == 0.0 and state.sigma2 == pytest.approx(1e-8)
     try:
         outcome = bpy.ops.brdf_moments.apply_edit(material="G")
     except RuntimeError as exc:  # a clear ERROR report, and the material is as it was

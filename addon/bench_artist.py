@@ -1,0 +1,157 @@
+"""``python -m addon bench --only artist``: what the artist sees against the converged reference
+(issue 19): every preview mode, the live low-resolution preview and its latency, and the
+Principled approximation that the artist's material renders outside OSL.
+
+One sphere, D = 115 px (the size of one sphere of the 256-wide preview), under Blender's
+"studio" HDRI, on ggx_glossy and ggx_mirror. Ground truth: ``render_reference`` at GT_SPP
+(its two halves give its own noise), cached by content. Errors: per-pixel relative RMSE over
+the pixels wholly inside the sphere, and RMSE / RMS in brackets.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import numpy as np
+
+NAMES = ("ggx_glossy", "ggx_mirror")
+SIZE = 128
+GT_SPP = 8192
+
+
+
+
+def bench_artist(quick=False):
+    import samples
+
+    from .bench_preview import _environment, _read_exr, ground_truth
+    from .core.fits import fit_material
+    from .core.merl import read_merl
+    from .core.principled import fit_principled
+    from .core.profiles import compute_profiles
+    from .core.render import MomentParams, TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
+    from .live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit, upsample
+    from .wheel import import_bpy
+
+    bpy = import_bpy()
+    from . import material as artist
+    from .core.edit import EditTargets
+    from .preview import build_preview, render_still
+    from .preview import scene as sc
+
+    env, env_path = _environment(bpy)
+    layout = sphere_layout(SIZE, SIZE, 1)
+    d = layout.diameter
+    mask = layout.interior_mask()
+    tmp = os.path.join(_tmp_dir(), "bench-artist.exr")
+    rows, notes, lat = [], [], []
+    gt_spp = 2048 if quick else GT_SPP
+    osl_settings = ((16, 16),) if quick else ((16, 16), (64, 64))
+
+    def err(img, gt):
+        return relative_rmse(img, gt, mask), normalized_rmse(img, gt, mask)
+
+    def row(name, what, setting, took, e):
+        t = f"{took * 1e3:.0f} ms" if took < 1 else f"{took:.2f} s"
+        rows.append(f"| {name} | {what} | {setting} | {t} | {e[0]:.2%} ({e[1]:.2%}) |")
+
+    def tile_image(rgb, cov):
+        return layout.compose([np.dstack([rgb * cov[..., None], cov])])
+
+    def cycles(scene, spp):
+        scene.cycles.samples = spp
+        render_still(scene, tmp, quiet=True)          # warm-up (shader compilation, BVH)
+        t = time.perf_counter()
+        render_still(scene, tmp, quiet=True)
+        return time.perf_counter() - t, _read_exr(bpy, tmp)
+
+    for name in NAMES:
+        table = read_merl(samples.sample_path(name))
+        prof = compute_profiles(table)
+        fit = fit_material(prof)
+        brdf = TableBRDF(table, prof)
+        gt, noise, took = ground_truth(layout, [brdf], env, f"{name}-i19", gt_spp)
+        notes.append(f"{name}: ground truth {gt_spp} spp" + (f" ({took:.0f} s)" if took else " (cached)")
+                     + f", its own noise {noise:.2%} per pixel")
+        # 1. the default preview: the baked table at Build Preview's setting
+        t = time.perf_counter()
+        rgb, cov = bake_sphere(brdf, env, d, FINAL_SAMPLES, 0)
+        row(name, "**default preview**: baked table", f"{FINAL_SAMPLES}+{FINAL_SAMPLES} samples/texel",
+            time.perf_counter() - t, err(tile_image(rgb, cov), gt))
+        # 2. the live preview's first image: a quarter-resolution bake, upsampled
+        d0 = max(d // LIVE_DIAMETER_DIV, 8)
+        t = time.perf_counter()
+        rgb0, cov0 = bake_sphere(brdf, env, d0, LIVE_SAMPLES, 0)
+        took = time.perf_counter() - t
+        rgb0 = upsample(rgb0, d)
+        row(name, "live preview, first image", f"D/{LIVE_DIAMETER_DIV} = {d0} px, {LIVE_SAMPLES}+{LIVE_SAMPLES}",
+            took, err(layout.compose([np.dstack([rgb0 * cov[..., None], cov])]), gt))
+        # 3. OSL: tabulated, and the sketch (moment model) against the table it sketches
+        params = MomentParams.from_fit(fit, tuple(prof.kd))
+        for mode, src in (("tabulated", brdf), ("model", params)):
+            for spp, lobe in osl_settings:
+                bpy.ops.wm.read_homefile(use_empty=True)
+                scene = bpy.context.scene
+                build_preview(scene, src, None, path="osl", mode=mode, env=env_path, size=SIZE, samples=spp,
+                              lobe_samples=lobe)
+                took, img = cycles(scene, spp)
+                row(name, "OSL tabulated" if mode == "tabulated" else "OSL sketch (moment model)",
+                    f"{spp} spp x {lobe} lobe", took, err(img, gt))
+        # 4. the artist's material outside OSL: the fitted Principled BSDF in Cycles (SVM)
+        t = time.perf_counter()
+        pfit = fit_principled(table)
+        t_fit = time.perf_counter() - t
+        bpy.ops.wm.read_homefile(use_empty=True)
+        scene = bpy.context.scene
+        sc.configure_render(scene, layout, "baked", 16)
+        scene.cycles.max_bounces = scene.cycles.diffuse_bounces = scene.cycles.glossy_bounces = 1
+        sc.ensure_camera(scene, layout)
+        sc.ensure_world(scene, env_path, path="osl")     # the map's importance sampling, as an artist's world
+        (obj,) = sc.ensure_spheres(scene, layout)
+        mat = bpy.data.materials.new("bench principled")
+        mat.use_nodes = True
+        artist.apply_principled(mat, pfit)
+        obj.data.materials.clear()
+        obj.data.materials.append(mat)
+        for spp in ((256,) if quick else (256, 1024)):
+            took, img = cycles(scene, spp)
+            row(name, "artist's material: Principled approx. (Cycles)", f"{spp} spp", took, err(img, gt))
+        notes.append(f"{name}: Principled fit in {t_fit:.2f} s: roughness {pfit.roughness:.4f}, metallic "
+                     f"{pfit.metallic:.3f}, specular {pfit.specular:.4f}, base "
+                     + ", ".join(f"{v:.3f}" for v in pfit.base_color)
+                     + f"; stated BRDF error {pfit.error:.1%}, albedo within {pfit.albedo_error:.1%}")
+        # 5. slider to preview: one synthesis round, the engine BRDF, the quarter-size bake
+        for k, s2 in enumerate((1.25, 1.5, 0.8)):
+            targets = EditTargets(sigma2=min(fit["sigma2"] * s2, math.pi ** 2 / 12))
+            t0 = time.perf_counter()
+            new = fast_edit(table, targets, prof, fit)
+            t1 = time.perf_counter()
+            nb = TableBRDF(new, prof)
+            t2 = time.perf_counter()
+            bake_sphere(nb, env, d0, LIVE_SAMPLES, 0)
+            t3 = time.perf_counter()
+            lat.append((name, s2, t1 - t0, t2 - t1, t3 - t2))
+    out = ["### What the artist sees, against the converged reference (one sphere, D = "
+           f"{d} px, `studio` HDRI)", "",
+           "| material | what | setting | time | rel. RMSE per pixel (RMSE/RMS) |", "|---|---|---|---|---|"]
+    out += rows
+    out += ["", "Slider move to the live preview's first image (one synthesis round, the engine's table BRDF, the "
+            f"D/{LIVE_DIAMETER_DIV} bake; the image write and the panel redraw are not included):", "",
+            "| material | σ̃² × | synthesis | table BRDF | bake | total |", "|---|---|---|---|---|---|"]
+    for name, s2, a, b, c in lat:
+        out.append(f"| {name} | {s2} | {a:.2f} s | {b:.2f} s | {c:.2f} s | {a + b + c:.2f} s |")
+    tot = [a + b + c for *_, a, b, c in lat]
+    out += ["", f"Median slider-to-preview latency {float(np.median(tot)):.2f} s (range {min(tot):.2f}–"
+            f"{max(tot):.2f} s), target 1 s: {'met' if np.median(tot) <= 1.0 else 'missed'}.", ""]
+    out += [f"- {n}" for n in notes]
+    return out
+
+
+def _tmp_dir():
+    from .core.integrate import default_cache_dir
+
+    path = os.path.join(default_cache_dir(), "preview")
+    os.makedirs(path, exist_ok=True)
+    return path

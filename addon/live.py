@@ -1,0 +1,227 @@
+"""The preview image in the panel, and its live update while a slider moves (SPEC §4).
+
+A slider move (after a short debounce) starts a worker thread: one synthesis round of the
+edit (``fast_edit``), then a quarter-resolution bake of the edited sphere, written into the
+edited half of the preview image; then the full-resolution bake of the same table replaces
+it. A newer slider move makes the worker drop what it was doing. Apply still makes the exact
+edit (all correction rounds), and Build Preview shows that.
+
+Headless (``blender -b``, the bpy module) there is no event loop for timers:
+``update_now(material)`` does the same work in place and returns the seconds it took.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import bpy
+import numpy as np
+
+FINAL_SAMPLES = 128        # Build Preview's bake: within 5 % per pixel on the near-mirror (BENCHMARKS.md)
+LIVE_DIAMETER_DIV = 4      # the first live image: a quarter of the sphere's resolution
+LIVE_SAMPLES = 16
+DEBOUNCE = 0.1             # seconds of quiet after a slider move before the work starts
+POLL = 0.05
+
+
+def preview_image_name(mat):
+    return f"BRDF Moments preview: {mat.name}"
+
+
+def fast_edit(table, targets, prof, fit):
+    """One synthesis round of the edit, not re-measured: what a slider drag can afford."""
+    from .core.edit import edit
+
+    return edit(table, targets, prof, fit, remeasure=False, max_rounds=1).table
+
+
+def upsample(tile, d):
+    d0 = tile.shape[0]
+    idx = np.minimum((np.arange(d) * d0) // d, d0 - 1)
+    return tile[idx][:, idx]
+
+
+# --- the image ---------------------------------------------------------------------------------
+
+def label_image(rgba, layout, labels):
+    """Sphere labels drawn into the (H, W, 4) top-row-first image, above each sphere."""
+    from .plot_font import draw_text, text_width
+
+    scale = max(1, layout.diameter // 128)
+    for left, text in zip(layout.lefts, labels):
+        w = text_width(text, scale)
+        x = left + max((layout.diameter - w) // 2, 0)
+        y = max(layout.top - 9 * scale, 1)
+        rgba[y - 1:y + 8 * scale, max(x - 1, 0):x + w + 1] = (0.0, 0.0, 0.0, 1.0)   # a dark box: legible anywhere
+        draw_text(rgba, x, y, text, (1.0, 1.0, 1.0), scale)
+    return rgba
+
+
+def write_preview_image(mat, rgba):
+    """The preview as a float image (linear radiance; ``rgba`` rows top first), kept in the .blend."""
+    h, w = rgba.shape[:2]
+    name = preview_image_name(mat)
+    img = bpy.data.images.get(name)
+    if img is not None and (tuple(img.size) != (w, h) or not img.is_float):
+        bpy.data.images.remove(img)
+        img = None
+    if img is None:
+        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True)
+    img.pixels.foreach_set(np.ascontiguousarray(rgba[::-1], np.float32).ravel())
+    img.update()
+    img.use_fake_user = True
+    if hasattr(img, "preview_ensure"):
+        img.preview_ensure()
+        img.preview.reload()
+    return img
+
+
+def read_preview_image(mat):
+    img = bpy.data.images.get(preview_image_name(mat))
+    if img is None:
+        return None
+    w, h = img.size
+    buf = np.empty(w * h * 4, np.float32)
+    img.pixels.foreach_get(buf)
+    return buf.reshape(h, w, 4)[::-1].copy()
+
+
+def replace_sphere(mat, k, rgb, cov, label):
+    """Sphere ``k`` of the preview image replaced by a (D, D) bake; the other sphere is kept."""
+    from .core.render import sphere_layout
+
+    rgba = read_preview_image(mat)
+    if rgba is None:
+        return None
+    h, w = rgba.shape[:2]
+    layout = sphere_layout(w, h, 2)
+    d, left, top = layout.diameter, layout.lefts[k], layout.top
+    if rgb.shape[0] != d:
+        rgb, cov = upsample(rgb, d), upsample(cov[..., None], d)[..., 0]
+    rgba[top:top + d, left:left + d] = np.dstack([rgb * cov[..., None], cov])
+    # only this sphere's label: a one-sphere layout at its place
+    label_image(rgba, type(layout)(layout.width, layout.height, 1, d, (left,), top), [label])
+    return write_preview_image(mat, rgba)
+
+
+# --- the work ----------------------------------------------------------------------------------
+
+_TABLES = {}      # (path, mtime, size) -> MerlTable: the source stays in memory between drags
+
+
+def _table(path):
+    from .core.merl import read_merl
+
+    st = os.stat(path)
+    key = (path, st.st_mtime_ns, st.st_size)
+    if key not in _TABLES:
+        _TABLES.clear()
+        _TABLES[key] = read_merl(path)
+    return _TABLES[key]
+
+
+def _job(mat):
+    """What the worker needs, read on the main thread; None when there is no live preview."""
+    from .core.render import sphere_layout
+    from .preview import load_environment, resolve_environment
+
+    state = mat.brdf_moments
+    img = bpy.data.images.get(preview_image_name(mat))
+    source = bpy.path.abspath(state.source_path)
+    if img is None or not state.analysed or state.preview_mode != "TABULATED" or not os.path.isfile(source):
+        return None
+    w, h = img.size
+    layout = sphere_layout(w, h, 2)
+    return dict(mat=mat.name, source=source, targets=state.slider_targets(), prof=state.profiles(),
+                fit=state.fit(), env=load_environment(resolve_environment(state.preview_env or None)),
+                d=layout.diameter)
+
+
+def _work(job, stale=lambda: False, post=lambda stage, rgb, cov: None):
+    from .core.render import TableBRDF, bake_sphere
+
+    table = _table(job["source"])
+    new = fast_edit(table, job["targets"], job["prof"], job["fit"])
+    if stale():
+        return
+    brdf = TableBRDF(new, job["prof"])
+    d = job["d"]
+    d0 = max(d // LIVE_DIAMETER_DIV, 8)
+    rgb, cov = bake_sphere(brdf, job["env"], d0, LIVE_SAMPLES, 0)
+    post("live", rgb, cov)
+    if stale():
+        return
+    rgb, cov = bake_sphere(brdf, job["env"], d, FINAL_SAMPLES, 0)
+    post("refined", rgb, cov)
+
+
+def update_now(mat, refine=False):
+    """The live update in place (headless, tests, the benchmark): seconds to the first image."""
+    job = _job(mat)
+    if job is None:
+        return None
+    t0 = time.perf_counter()
+    first = []
+
+    def post(stage, rgb, cov):
+        replace_sphere(mat, 1, rgb, cov, "edited (live)" if stage == "live" else "edited (one round)")
+        if not first:
+            first.append(time.perf_counter() - t0)
+
+    _work(job, stale=lambda: bool(first) and not refine, post=post)
+    return first[0] if first else None
+
+
+# --- in a window: debounce, a worker thread, results applied by a timer ---------------------------
+
+_GEN = {}           # material name -> generation (each slider move bumps it)
+_POSTED = []        # (material name, generation, stage, rgb, cov) from the worker
+_LOCK = threading.Lock()
+
+
+def slider_moved(mat):
+    if bpy.app.background or bpy.data.images.get(preview_image_name(mat)) is None:
+        return
+    name = mat.name
+    _GEN[name] = _GEN.get(name, 0) + 1
+    gen = _GEN[name]
+
+    def kick():
+        if _GEN.get(name) != gen:
+            return None                   # a newer move will kick
+        m = bpy.data.materials.get(name)
+        job = _job(m) if m is not None else None
+        if job is None:
+            return None
+
+        def post(stage, rgb, cov):
+            with _LOCK:
+                _POSTED.append((name, gen, stage, rgb, cov))
+
+        def run():
+            try:
+                _work(job, stale=lambda: _GEN.get(name) != gen, post=post)
+            except Exception as exc:     # noqa: BLE001 - a failed live update leaves the last image
+                print(f"BRDF Moments: live preview: {type(exc).__name__}: {exc}")
+
+        threading.Thread(target=run, name="brdf_moments: live preview", daemon=True).start()
+        if not bpy.app.timers.is_registered(_apply_posted):
+            bpy.app.timers.register(_apply_posted, first_interval=POLL)
+        return None
+
+    bpy.app.timers.register(kick, first_interval=DEBOUNCE)
+
+
+def _apply_posted():
+    with _LOCK:
+        posted = list(_POSTED)
+        _POSTED.clear()
+    for name, gen, stage, rgb, cov in posted:
+        mat = bpy.data.materials.get(name)
+        if mat is None or _GEN.get(name) != gen and stage == "refined":
+            continue
+        replace_sphere(mat, 1, rgb, cov, "edited (live)" if stage == "live" else "edited (one round)")
+    busy = any(t.name == "brdf_moments: live preview" and t.is_alive() for t in threading.enumerate())
+    return POLL if busy or posted else None

@@ -1,0 +1,245 @@
+"""The edited BRDF in the artist's own material (SPEC §4), without losing their node tree.
+
+Apply puts one group node, "BRDF Moments edit", into the material and links it to the active
+Material Output's Surface; the artist's nodes stay where they were, untouched. What the link
+replaced is remembered on the material, so Restore puts it back and removes the group: the
+tree is then exactly the original. Both are plain data edits inside undo-aware operators, so
+Ctrl-Z undoes them.
+
+The group holds either
+- a Principled BSDF fitted to the edited table (``core.principled``): any engine, any Blender
+  (EEVEE, Cycles on GPU, Debian's 3.4); an approximation whose error the panel states; or
+- the tabulated OSL shader reading the edited table (Cycles with OSL only): the material itself.
+"""
+
+from __future__ import annotations
+
+import json
+
+import bpy
+
+GROUP_NODE = "BRDF Moments edit"
+KEY = "brdfm_original_surface"     # JSON [node name, output identifier] or [] (Surface unlinked)
+
+
+def group_name(mat) -> str:
+    return f"BRDF Moments: {mat.name}"
+
+
+def output_node(tree):
+    node = None
+    if hasattr(tree, "get_output_node"):
+        node = tree.get_output_node("ALL") or tree.get_output_node("CYCLES") or tree.get_output_node("EEVEE")
+    if node is None:
+        outs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial"]
+        node = next((n for n in outs if getattr(n, "is_active_output", False)), outs[0] if outs else None)
+    return node
+
+
+def _new_group(name):
+    group = bpy.data.node_groups.new(name, "ShaderNodeTree")
+    if hasattr(group, "interface"):                  # Blender 4.0 and later
+        group.interface.new_socket("BSDF", in_out="OUTPUT", socket_type="NodeSocketShader")
+    else:                                            # 3.x
+        group.outputs.new("NodeSocketShader", "BSDF")
+    return group
+
+
+def _set_input(node, names, value):
+    for name in names:
+        sock = node.inputs.get(name)
+        if sock is not None:
+            sock.default_value = value
+            return True
+    return False
+
+
+def fill_principled(group, fit):
+    """The group's content: one Principled BSDF with the fitted inputs (3.x and 4.x names)."""
+    group.nodes.clear()
+    out = group.nodes.new("NodeGroupOutput")
+    out.location = (300, 0)
+    bsdf = group.nodes.new("ShaderNodeBsdfPrincipled")
+    bsdf.name = bsdf.label = "Principled (fitted to the edited table)"
+    if hasattr(bsdf, "distribution"):
+        bsdf.distribution = "GGX"       # the fit's single-scattering GGX
+    _set_input(bsdf, ("Base Color",), (*fit.base_color, 1.0))
+    _set_input(bsdf, ("Metallic",), fit.metallic)
+    _set_input(bsdf, ("Roughness",), fit.roughness)
+    if bsdf.inputs.get("Specular IOR Level") is not None:      # 4.x: F0 from the IOR, level 0.5 = as is
+        _set_input(bsdf, ("Specular IOR Level",), 0.5)
+        _set_input(bsdf, ("IOR",), fit.ior)
+    else:                                                       # 3.x: Specular 0.5 = F0 0.04
+        _set_input(bsdf, ("Specular",), min(fit.specular_3x, 1.0))
+    for name, value in (("Coat Weight", 0.0), ("Clearcoat", 0.0), ("Sheen Weight", 0.0), ("Sheen", 0.0),
+                        ("Transmission Weight", 0.0), ("Transmission", 0.0), ("Subsurface Weight", 0.0),
+                        ("Subsurface", 0.0), ("Specular Tint", (1.0, 1.0, 1.0, 1.0))):
+        sock = bsdf.inputs.get(name)
+        if sock is None:
+            continue
+        if isinstance(value, tuple) and not hasattr(sock.default_value, "__len__"):
+            value = 0.0                  # 3.x's Specular Tint is a float: 0 is untinted
+        sock.default_value = value
+    group.links.new(bsdf.outputs[0], out.inputs[0])
+    return bsdf
+
+
+def fill_osl(group, texture_path, fit_mu, fit_sigma2, kd, samples=16):
+    """The group's content: the tabulated OSL shader (Cycles with OSL)."""
+    from .preview import osl as osl_path
+
+    group.nodes.clear()
+    out = group.nodes.new("NodeGroupOutput")
+    out.location = (300, 0)
+    node = osl_path.script_node(group, "tabulated")
+    osl_path.set_table_inputs(node, texture_path, fit_mu, fit_sigma2, kd, samples=samples)
+    group.links.new(node.outputs["BSDF"], out.inputs[0])
+    return node
+
+
+def is_applied(mat) -> bool:
+    return bool(mat.node_tree is not None and mat.node_tree.nodes.get(GROUP_NODE) is not None and KEY in mat)
+
+
+def apply_group(mat, label):
+    """The edit's group node in ``mat``, linked to its output (the original link remembered once)."""
+    if getattr(mat, "node_tree", None) is None:
+        mat.use_nodes = True
+    tree = mat.node_tree
+    out = output_node(tree)
+    if out is None:
+        out = tree.nodes.new("ShaderNodeOutputMaterial")
+        out.location = (300, 300)
+    surface = out.inputs["Surface"]
+    node = tree.nodes.get(GROUP_NODE)
+    if node is None or KEY not in mat:
+        if surface.is_linked:
+            link = surface.links[0]
+            mat[KEY] = json.dumps([link.from_node.name, link.from_socket.identifier])
+        else:
+            mat[KEY] = json.dumps([])
+        if node is None:
+            node = tree.nodes.new("ShaderNodeGroup")
+            node.name = GROUP_NODE
+            node.location = (out.location.x - 220, out.location.y - 220)
+    group = node.node_tree or bpy.data.node_groups.get(group_name(mat)) or _new_group(group_name(mat))
+    node.node_tree = group
+    node.label = label
+    tree.links.new(node.outputs[0], surface)
+    return group
+
+
+def restore(mat) -> bool:
+    """Put the artist's Surface link back and remove the edit's node; False if nothing to undo."""
+    tree = mat.node_tree
+    if tree is None or KEY not in mat:
+        return False
+    saved = json.loads(mat[KEY])
+    node = tree.nodes.get(GROUP_NODE)
+    group = node.node_tree if node is not None else None
+    out = output_node(tree)
+    if node is not None:
+        tree.nodes.remove(node)
+    if out is not None and saved:
+        src = tree.nodes.get(saved[0])
+        sock = next((s for s in src.outputs if s.identifier == saved[1]), None) if src is not None else None
+        if sock is not None:
+            tree.links.new(sock, out.inputs["Surface"])
+    del mat[KEY]
+    if group is not None and group.users == 0:
+        bpy.data.node_groups.remove(group)
+    return True
+
+
+# --- what Apply writes ---------------------------------------------------------------------------
+
+def apply_principled(mat, fit):
+    label = f"BRDF Moments edit (Principled approx., error {100 * fit.error:.1f} %)"
+    group = apply_group(mat, label)
+    fill_principled(group, fit)
+    return group
+
+
+TEXTURE_IMAGE = "BRDFM table: {}"
+TEXTURE_FOLDER = "brdf_moments"     # next to the .blend, when the artist chooses that
+
+
+def _texture_cache():
+    import os
+
+    from .preview.osl import cache_dir
+
+    return os.path.join(cache_dir(), "artist")
+
+
+def table_texture_file(mat, pixels, storage="PACK"):
+    """The OSL table texture of ``mat`` as a file (OSL reads files only), and an image datablock
+    that keeps it with the .blend: packed into it (default), or a file next to it."""
+    import hashlib
+    import os
+
+    from .preview.environment import write_environment
+
+    name = f"brdfm-table-{hashlib.sha256(pixels.tobytes()).hexdigest()[:16]}.exr"
+    beside = storage == "BESIDE" and bool(bpy.data.filepath)
+    folder = os.path.join(os.path.dirname(bpy.path.abspath(bpy.data.filepath)), TEXTURE_FOLDER) if beside \
+        else _texture_cache()
+    os.makedirs(folder, exist_ok=True)
+    path = os.path.join(folder, name)
+    if not os.path.isfile(path):
+        write_environment(pixels, path)
+    img_name = TEXTURE_IMAGE.format(mat.name)
+    old = bpy.data.images.get(img_name)
+    if old is not None:
+        bpy.data.images.remove(old)
+    img = bpy.data.images.load(path)
+    img.name = img_name
+    img.colorspace_settings.name = "Non-Color"
+    img.use_fake_user = True
+    if beside:
+        img.filepath = f"//{TEXTURE_FOLDER}/{name}"
+    else:
+        img.pack()
+    img["brdfm_texture"] = name
+    return path
+
+
+def apply_osl(mat, pixels, res, scene=None):
+    state = mat.brdf_moments
+    path = table_texture_file(mat, pixels, state.texture_storage)
+    group = apply_group(mat, "BRDF Moments edit (OSL, the edited table)")
+    prof = res.profiles
+    fill_osl(group, path, res.achieved_mu_slope if res.achieved_mu_slope is not None else state.fit_mu_slope,
+             res.achieved_sigma2 if res.achieved_sigma2 is not None else state.fit_sigma2, prof.kd)
+    return group
+
+
+def relink_textures():
+    """After a .blend is opened (maybe on another machine): point every OSL edit at its table
+    texture, written out of the packed image (or found next to the .blend) when missing."""
+    import os
+
+    for mat in bpy.data.materials:
+        node = mat.node_tree.nodes.get(GROUP_NODE) if mat.node_tree is not None else None
+        group = node.node_tree if node is not None else None
+        script = next((n for n in group.nodes if n.bl_idname == "ShaderNodeScript"), None) if group else None
+        img = bpy.data.images.get(TEXTURE_IMAGE.format(mat.name))
+        if script is None or img is None or "Table" not in script.inputs:
+            continue
+        if os.path.isfile(script.inputs["Table"].default_value):
+            continue
+        name = img.get("brdfm_texture") or os.path.basename(img.filepath)
+        if img.packed_file is not None:
+            folder = _texture_cache()
+            os.makedirs(folder, exist_ok=True)
+            path = os.path.join(folder, name)
+            if not os.path.isfile(path):
+                from .core.atomic import atomic_path
+
+                with atomic_path(path, ".exr") as tmp:
+                    with open(tmp, "wb") as fh:
+                        fh.write(img.packed_file.data)
+        else:
+            path = bpy.path.abspath(img.filepath)
+        if os.path.isfile(path):
+            script.inputs["Table"].default_value = path

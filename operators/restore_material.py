@@ -1,0 +1,30 @@
+"""Restore: the artist's own shader back in place of the edit (the node tree as it was)."""
+
+import bpy
+
+from .common import target_material
+
+
+class BRDFMOMENTS_OT_restore_material(bpy.types.Operator):
+    """Put the material's original shader back (removes the BRDF Moments edit node)"""
+
+    bl_idname = "brdf_moments.restore_material"
+    bl_label = "Restore Original Shader"
+    bl_options = {"REGISTER", "UNDO"}
+
+    material: bpy.props.StringProperty(name="Material", description="target material (default: active)")
+
+    def execute(self, context):
+        from ..addon.material import restore
+
+        try:
+            mat = target_material(context, self.material)
+        except ValueError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        if not restore(mat):
+            self.report({"INFO"}, f"{mat.name}: the shader is already the original")
+            return {"CANCELLED"}
+        mat.brdf_moments.artist_shader_used = ""
+        self.report({"INFO"}, f"{mat.name}: original shader restored")
+        return {"FINISHED"}

@@ -1,0 +1,285 @@
+"""Apply reaches the artist's own material (SPEC §4), Restore gives their shader back, and the
+.blend keeps what it needs (bpy 4.5 module, the extension enabled as in test_operators)."""
+
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture
+def artist(fresh, tmp_path, monkeypatch):
+    """The artist's scene: a sphere with their own node tree (a Mix of two shaders), the material
+    analysed from ggx_glossy; a small Cycles render of the sphere under a constant sky."""
+    import samples
+    from addon.core.render import sphere_layout
+    from addon.preview import scene as sc, write_environment
+
+    bpy = fresh
+    src = tmp_path / "glossy.binary"
+    shutil.copy(samples.sample_path("ggx_glossy"), src)
+    mat = bpy.data.materials.new("Artist")
+    mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.8, 0.1, 0.1, 1.0)
+    glossy = nt.nodes.new("ShaderNodeBsdfAnisotropic" if "ShaderNodeBsdfAnisotropic" in dir(bpy.types)
+                          else "ShaderNodeBsdfGlossy")
+    mix = nt.nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = 0.3
+    nt.links.new(diffuse.outputs[0], mix.inputs[1])
+    nt.links.new(glossy.outputs[0], mix.inputs[2])
+    nt.links.new(mix.outputs[0], out.inputs["Surface"])
+    mat.brdf_moments.source_path = str(src)
+    assert bpy.ops.brdf_moments.analyse(material="Artist") == {"FINISHED"}
+
+    scene = bpy.context.scene
+    layout = sphere_layout(24, 24, 1)
+    sky = write_environment(np.full((8, 16, 3), 0.5, np.float32), str(tmp_path / "sky.exr"))
+    sc.configure_render(scene, layout, "baked", samples=256)
+    scene.cycles.max_bounces = scene.cycles.diffuse_bounces = scene.cycles.glossy_bounces = 1
+    sc.ensure_camera(scene, layout)
+    sc.ensure_world(scene, sky, path="osl")
+    (obj,) = sc.ensure_spheres(scene, layout)
+    obj.data.materials.clear()
+    obj.data.materials.append(mat)
+    return bpy, mat, scene, layout, tmp_path
+
+
+def _render(bpy, scene, path):
+    from addon.preview import quiet_stdout
+
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.filepath = str(path)
+    with quiet_stdout():
+        bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(path))
+    w, h = img.size
+    buf = np.empty(w * h * 4, np.float32)
+    img.pixels.foreach_get(buf)
+    bpy.data.images.remove(img)
+    return buf.reshape(h, w, 4)[::-1, :, :3]
+
+
+def _tree(mat):
+    nt = mat.node_tree
+    nodes = sorted((n.name, n.bl_idname, tuple(
+        tuple(s.default_value) if hasattr(s.default_value, "__len__") else s.default_value
+        for s in n.inputs if hasattr(s, "default_value"))) for n in nt.nodes)
+    links = sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
+                   for l in nt.links)
+    return nodes, links
+
+
+def test_apply_renders_the_edit_and_restore_gives_the_original_back(artist):
+    from addon.core.render import Environment, TableBRDF, render_reference, relative_rmse
+    from addon.core.merl import read_merl
+
+    bpy, mat, scene, layout, tmp = artist
+    before_tree = _tree(mat)
+    before = _render(bpy, scene, tmp / "before.exr")
+    state = mat.brdf_moments
+    state.artist_shader = "PRINCIPLED"
+    state.strength = 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    node = mat.node_tree.nodes["BRDF Moments edit"]
+    out = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    assert out.inputs["Surface"].links[0].from_node == node
+    assert "Principled approx" in node.label
+    assert {n.name for n in mat.node_tree.nodes} == {n for n, *_ in before_tree[0]} | {"BRDF Moments edit"}
+    after = _render(bpy, scene, tmp / "after.exr")
+    # What the sphere shows now is the edited table, within the approximation's error: compare
+    # with the converged numpy render of that table under the same sky.
+    mask = layout.interior_mask()
+    sky = Environment.constant((0.5, 0.5, 0.5))
+    ref = render_reference(layout, [TableBRDF(read_merl(state.edited_path))], sky, spp=2048, seed=5)
+    err_after = relative_rmse(after, ref, mask)
+    err_before = relative_rmse(before, ref, mask)
+    stated = state.principled_fit().error
+    assert err_after < stated < err_before, (err_after, stated, err_before)
+    # Restore: the artist's tree exactly as it was, and the same pixels (same seed).
+    assert bpy.ops.brdf_moments.restore_material(material="Artist") == {"FINISHED"}
+    assert _tree(mat) == before_tree
+    again = _render(bpy, scene, tmp / "again.exr")
+    np.testing.assert_array_equal(again, before)
+    assert "BRDF Moments: Artist" not in bpy.data.node_groups
+
+
+def test_apply_twice_keeps_one_node_and_restores_the_first_original(artist):
+    bpy, mat, *_ = artist
+    before_tree = _tree(mat)
+    state = mat.brdf_moments
+    state.artist_shader = "PRINCIPLED"
+    state.strength = 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    first = json.loads(state.principled_data)
+    state.strength = 1.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    assert [n.name for n in mat.node_tree.nodes].count("BRDF Moments edit") == 1
+    second = json.loads(state.principled_data)
+    # three times the specular energy (kd is kept): the fitted reflectance at normal incidence grows
+    f0 = [(1 - d["metallic"]) * d["specular"] + d["metallic"] * d["base_color"][0] for d in (first, second)]
+    assert f0[1] > 3 * f0[0], f0
+    assert bpy.ops.brdf_moments.restore_material(material="Artist") == {"FINISHED"}
+    assert _tree(mat) == before_tree
+
+
+def test_the_edit_and_the_plot_survive_save_and_reopen(artist):
+    bpy, mat, scene, layout, tmp = artist
+    state = mat.brdf_moments
+    state.artist_shader = "PRINCIPLED"
+    state.sigma2 = state.fit_sigma2 * 1.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    plot = bpy.data.images["BRDF Moments plot: Artist"]
+    px = np.empty(plot.size[0] * plot.size[1] * 4, np.float32)
+    plot.pixels.foreach_get(px)
+    path = str(tmp / "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    assert "Artist" not in bpy.data.materials
+    bpy.ops.wm.open_mainfile(filepath=path)
+    mat = bpy.data.materials["Artist"]
+    assert mat.node_tree.nodes["BRDF Moments edit"].node_tree.name == "BRDF Moments: Artist"
+    img = bpy.data.images["BRDF Moments plot: Artist"]
+    again = np.empty(img.size[0] * img.size[1] * 4, np.float32)
+    img.pixels.foreach_get(again)
+    # redrawn from the stored (float32) profiles, with the edit: the same picture up to a few
+    # anti-aliased pixels, not a blank image
+    assert np.mean(np.abs(again - px) > 1 / 255) < 1e-3
+    assert np.mean(np.abs(again.reshape(-1, 4)[:, :3] - 0.16) > 0.1) > 0.01
+    # Analyse again keeps the last edit
+    edited = mat.brdf_moments.edited_profiles_data
+    assert bpy.ops.brdf_moments.analyse(material="Artist") == {"FINISHED"}
+    assert mat.brdf_moments.edited_profiles_data == edited and edited
+
+
+def test_osl_edit_keeps_its_table_texture_packed_in_the_blend(artist):
+    from addon.preview import osl_available
+
+    bpy, mat, scene, layout, tmp = artist
+    if not osl_available()[0]:
+        pytest.fail("the bpy wheel's OSL should be reachable in the test harness: " + osl_available()[1])
+    state = mat.brdf_moments
+    state.artist_shader = "OSL"
+    state.strength = 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    group = mat.node_tree.nodes["BRDF Moments edit"].node_tree
+    script = next(n for n in group.nodes if n.bl_idname == "ShaderNodeScript")
+    tex = script.inputs["Table"].default_value
+    assert os.path.isfile(tex)
+    img = bpy.data.images["BRDFM table: Artist"]
+    assert img.packed_file is not None
+    path = str(tmp / "osl.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    with open(tex, "rb") as fh:
+        data = fh.read()
+    os.remove(tex)                                    # "another machine": the texture file is gone
+    bpy.ops.wm.open_mainfile(filepath=path)
+    mat = bpy.data.materials["Artist"]
+    script = next(n for n in mat.node_tree.nodes["BRDF Moments edit"].node_tree.nodes
+                  if n.bl_idname == "ShaderNodeScript")
+    new = script.inputs["Table"].default_value
+    assert os.path.isfile(new)
+    with open(new, "rb") as fh:
+        assert fh.read() == data
+
+
+def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
+    """The live update (in place, as headless Blender runs it): the edited sphere shows a
+    quarter-resolution bake of one synthesis round, the original sphere is untouched."""
+    import sys
+
+    from addon.core.edit import EditTargets
+    from addon.core.merl import read_merl
+    from addon.core.render import TableBRDF, bake_sphere, sphere_layout
+    from addon.preview import load_environment, resolve_environment
+
+    bpy, mat, scene, layout, tmp = artist
+    live = sys.modules["bl_ext.bmtest.brdf_moments.addon.live"]
+    state = mat.brdf_moments
+    assert bpy.ops.brdf_moments.build_preview(material="Artist", path="BAKED", size=48) == {"FINISHED"}
+    before = live.read_preview_image(mat)
+    state.sigma2 = state.fit_sigma2 * 2.0
+    took = live.update_now(mat)
+    assert took is not None and took > 0
+    after = live.read_preview_image(mat)
+    lay = sphere_layout(96, 48, 2)
+    d, (l0, l1), top = lay.diameter, lay.lefts, lay.top
+    body = slice(top + 12, top + d)                       # below the labels
+    np.testing.assert_array_equal(after[body, l0:l0 + d], before[body, l0:l0 + d])
+    # the edited sphere: the bake of one synthesis round of the new sliders, upsampled
+    table = read_merl(state.source_path)
+    new = live.fast_edit(table, EditTargets(sigma2=state.sigma2), state.profiles(), state.fit())
+    env = load_environment(resolve_environment(None))
+    rgb, cov = bake_sphere(TableBRDF(new, state.profiles()), env, max(d // live.LIVE_DIAMETER_DIV, 8),
+                           live.LIVE_SAMPLES, 0)
+    want = live.upsample(rgb * cov[..., None], d)
+    np.testing.assert_allclose(after[body, l1:l1 + d, :3], want[12:], rtol=1e-5, atol=1e-6)
+    # a wider lobe: the highlight drops
+    assert after[body, l1:l1 + d, :3].max() < before[body, l1:l1 + d, :3].max()
+
+
+def test_the_sliders_start_at_the_fits_even_below_minus_one(artist):
+    """ggx_glossy's fitted mean slope is below -1 (-1.068): the slider holds it, unclamped."""
+    bpy, mat, *_ = artist
+    state = mat.brdf_moments
+    assert state.fit_mu_slope < -1.0
+    assert state.mu_slope == pytest.approx(state.fit_mu_slope, abs=1e-6)
+    assert state.sigma2 == pytest.approx(state.fit_sigma2, rel=1e-6)
+    # an identity Apply: the sliders at the fit are the measured values (nothing clamped)
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    assert state.achieved_mu_slope == pytest.approx(state.fit_mu_slope, abs=1e-6)
+
+
+def test_the_panel_shows_four_significant_digits_and_the_approximation(artist):
+    from importlib import import_module
+
+    from tests.test_operators import _Recorder
+
+    bpy, mat, *_ = artist
+    panel = import_module("bl_ext.bmtest.brdf_moments.addon.panel")
+    state = mat.brdf_moments
+    state.artist_shader, state.strength = "PRINCIPLED", 0.7
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    log = []
+    panel.draw_material(_Recorder(bpy, log), mat)
+    texts = [entry[2].get("text", "") for entry in log if entry[0] == "label"]
+    assert f"σ̃² = {state.fit_sigma2:.4g}" in texts
+    whole = " ".join(texts)                  # wrapped over several labels
+    assert "Principled BSDF fitted to the edited table: an approximation" in whole
+    ops = [entry[1] for entry in log if entry[0] == "operator"]
+    assert "brdf_moments.restore_material" in ops
+    # one button per action (Export has one per kind of output, and each image its "Open full size")
+    for op in set(ops) - {"brdf_moments.export", "brdf_moments.show_image"}:
+        assert ops.count(op) == 1, op
+
+
+def test_osl_table_texture_next_to_the_blend_moves_with_it(artist):
+    from addon.preview import osl_available
+
+    bpy, mat, scene, layout, tmp = artist
+    if not osl_available()[0]:
+        pytest.fail("the bpy wheel's OSL should be reachable in the test harness: " + osl_available()[1])
+    first = tmp / "a"
+    first.mkdir()
+    bpy.ops.wm.save_as_mainfile(filepath=str(first / "scene.blend"))
+    mat = bpy.data.materials["Artist"]
+    state = mat.brdf_moments
+    state.artist_shader, state.texture_storage, state.strength = "OSL", "BESIDE", 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    img = bpy.data.images["BRDFM table: Artist"]
+    assert img.packed_file is None and img.filepath.startswith("//brdf_moments/")
+    written = list((first / "brdf_moments").iterdir())
+    assert len(written) == 1 and written[0].suffix == ".exr"
+    bpy.ops.wm.save_mainfile()
+    # the artist moves the folder (the .blend and its brdf_moments/ beside it) to another place
+    moved = tmp / "b"
+    shutil.move(str(first), str(moved))
+    bpy.ops.wm.open_mainfile(filepath=str(moved / "scene.blend"))
+    script = next(n for n in bpy.data.materials["Artist"].node_tree.nodes["BRDF Moments edit"].node_tree.nodes
+                  if n.bl_idname == "ShaderNodeScript")
+    assert os.path.samefile(script.inputs["Table"].default_value, moved / "brdf_moments" / written[0].name)
