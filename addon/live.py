@@ -1,6 +1,6 @@
 """The preview image in the panel, and its live update while a slider moves (SPEC §4).
 
-A slider move (after a short debounce) starts a worker thread: one synthesis round of the
+A slider move (after a short debounce) starts a worker thread: the synthesis of the
 edit (``fast_edit``), then a quarter-resolution bake of the edited sphere, written into the
 edited half of the preview image; then the full-resolution bake of the same table replaces
 it. A newer slider move makes the worker drop what it was doing. Apply still makes the exact
@@ -31,10 +31,10 @@ def preview_image_name(mat):
 
 
 def fast_edit(table, targets, prof, fit):
-    """One synthesis round of the edit, not re-measured: what a slider drag can afford."""
+    """The edit's synthesis, not re-measured: what a slider drag can afford."""
     from .core.edit import edit
 
-    return edit(table, targets, prof, fit, remeasure=False, max_rounds=1).table
+    return edit(table, targets, prof, fit, remeasure=False).table
 
 
 def upsample(tile, d):
@@ -112,25 +112,26 @@ _TABLES = {}      # (path, mtime, size) -> MerlTable: the source stays in memory
 
 
 def _table(path):
-    from .core.merl import read_merl
+    from .core.nbrdf import read_table, source_file
 
-    st = os.stat(path)
+    st = os.stat(source_file(path))  # a MERL file, or the FILE of FILE:NAME (a network)
     key = (path, st.st_mtime_ns, st.st_size)
     if key not in _TABLES:
         _TABLES.clear()
-        _TABLES[key] = read_merl(path)
+        _TABLES[key] = read_table(path)
     return _TABLES[key]
 
 
 def _job(mat):
     """What the worker needs, read on the main thread; None when there is no live preview."""
+    from .core.nbrdf import source_exists
     from .core.render import sphere_layout
     from .preview import load_environment, resolve_environment
 
     state = mat.brdf_moments
     img = bpy.data.images.get(preview_image_name(mat))
     source = bpy.path.abspath(state.source_path)
-    if img is None or not state.analysed or state.preview_mode != "TABULATED" or not os.path.isfile(source):
+    if img is None or not state.analysed or state.preview_mode != "TABULATED" or not source_exists(source):
         return None
     w, h = img.size
     layout = sphere_layout(w, h, 2)
