@@ -3,8 +3,8 @@
 A slider move (after a short debounce) starts a worker thread: the synthesis of the
 edit (``fast_edit``), then a quarter-resolution bake of the edited sphere, written into the
 edited half of the preview image; then the full-resolution bake of the same table replaces
-it. A newer slider move makes the worker drop what it was doing. Apply still makes the exact
-edit (all correction rounds), and Build Preview shows that.
+it. A newer slider move makes the worker drop what it was doing. Apply makes the same edit and
+re-measures it, and Build Preview shows that.
 
 Headless (``blender -b``, the bpy module) there is no event loop for timers:
 ``update_now(material)`` does the same work in place and returns the seconds it took.
