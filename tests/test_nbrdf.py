@@ -8,7 +8,7 @@ import pytest
 import samples
 from addon.core import nbrdf
 from addon.core.geometry import directions_from_half_diff, half_diff_from_directions
-from addon.core.merl import N_CELLS, MerlError, cell_indices, read_merl, tabulate
+from addon.core.merl import MerlError, cell_indices, read_merl, tabulate
 
 RGL = os.path.join(samples.MEASURED_DIR, "nbrdf-rgl-isotropic.npz")
 NIELSEN = os.path.join(samples.MEASURED_DIR, "nbrdf-nielsen.npz")
