@@ -8,7 +8,7 @@ import pytest
 import samples
 from addon.core import nbrdf
 from addon.core.geometry import directions_from_half_diff, half_diff_from_directions
-from addon.core.merl import N_CELLS, MerlError, cell_indices, read_merl, tabulate
+from addon.core.merl import MerlError, cell_indices, read_merl, tabulate
 
 RGL = os.path.join(samples.MEASURED_DIR, "nbrdf-rgl-isotropic.npz")
 NIELSEN = os.path.join(samples.MEASURED_DIR, "nbrdf-nielsen.npz")
@@ -173,7 +173,7 @@ def test_bad_sources_raise_one_line_errors_naming_the_file(tmp_path):
         (_bad(tmp_path, "nan.npz", **nan), "non-finite"),
         (_bad(tmp_path, "lack.npz", **{k: v for k, v in good.items() if k != "b3"}), "lacks weight"),
         (tmp_path / "absent.npz", "no such file"),
-        (tmp_path, "no network weights"),
+        (tmp_path, "a folder with no network weights"),
     ]
     for path, fault in cases:
         with pytest.raises(MerlError) as err:

@@ -82,7 +82,8 @@ def test_bad_files_are_cancelled_with_a_report_and_keep_the_previous_analysis(fr
         assert (state.source_path, state.fit_mu_slope, state.fit_sigma2, state.profiles_data) == before
         assert sha256(path) == digest
         stress_log.record("Blender: Load MERL on bad files", "error", f"{name}: {fault}")
-    for name, filepath, fault in [("folder", str(tmp_path), "no such file"),
+    # A folder is a source only when it holds Neural-BRDF .npy weights; this one holds none.
+    for name, filepath, fault in [("folder", str(tmp_path), "a folder with no network weights"),
                                   ("missing", str(tmp_path / "gone.binary"), "no such file"),
                                   ("no file", "", "no MERL file chosen")]:
         with pytest.raises(RuntimeError, match=fault):

@@ -5,14 +5,12 @@ Measured tables differ from the analytic samples: noise, grazing extrapolation, 
 changes with angle, floors near zero, variances above the Lambertian's, slopes past the mirror.
 """
 
-import math
 
 import numpy as np
 import pytest
 
 import samples
 from _stress import assert_finite_tree, assert_profiles_sane
-from addon.core import nbrdf
 from addon.core.edit import EditTargets, edit, resolve_targets
 from addon.core.fits import LAMBERT_VARIANCE, fit_material
 from addon.core.integrate import default_views

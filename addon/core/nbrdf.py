@@ -235,6 +235,9 @@ def _groups(path):
         kind = ".npz of Neural-BRDF weights (keys W1 b1 ... or NAME/W1 ...)"
     groups = {k: v for k, v in groups.items()}
     if not groups:
+        if os.path.isdir(path):
+            raise WeightsError(path, "a folder with no network weights in it (Neural-BRDF NAME_fc1.npy ...); "
+                                     "choose a MERL .binary file or a weights file")
         raise WeightsError(path, f"no network weights found; expected a {kind}")
     if "" in groups:
         # One unnamed material: name it after the file or folder.
