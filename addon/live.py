@@ -49,7 +49,7 @@ def label_image(rgba, layout, labels):
     """Sphere labels drawn into the (H, W, 4) top-row-first image, above each sphere."""
     from .plot_font import draw_text, text_width
 
-    scale = max(1, layout.diameter // 128)
+    scale = max(1, layout.diameter // 100)
     for left, text in zip(layout.lefts, labels):
         w = text_width(text, scale)
         x = left + max((layout.diameter - w) // 2, 0)

@@ -167,7 +167,7 @@ def draw_material(layout, mat, context=None):
     if pimg is not None:
         row.operator("brdf_moments.show_image", text="Open full size", icon="WINDOW").image = pimg.name
         if getattr(pimg, "preview", None) is not None:
-            prev.template_icon(icon_value=pimg.preview.icon_id, scale=8.0)
+            prev.template_icon(icon_value=pimg.preview.icon_id, scale=12.0)
 
 
 class MATERIAL_PT_brdf_moments(bpy.types.Panel):

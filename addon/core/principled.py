@@ -110,14 +110,34 @@ def _quadrature(views_deg=VIEWS_DEG, n_phi=N_PHI_H):
     return np.concatenate(wis), np.concatenate(wos), np.concatenate(ws), sizes
 
 
+def _box_qp(A, b, ub, iters=8):
+    """min u.A.u - 2 u.b over 0 <= u <= ub (A positive definite, 4 unknowns): an active set,
+    variables pinned at a bound while their gradient pushes outward, the rest solved exactly."""
+    n = len(b)
+    fixed = np.zeros(n, bool)
+    u = np.zeros(n)
+    for _ in range(iters):
+        free = ~fixed
+        u_f = u.copy()
+        if free.any():
+            rhs = b[free] - A[np.ix_(free, fixed)] @ u[fixed]
+            u_f[free] = np.linalg.solve(A[np.ix_(free, free)], rhs)
+        out = free & ((u_f < 0.0) | (u_f > ub))
+        u = np.clip(u_f, 0.0, ub)
+        g = A @ u - b                           # half the gradient
+        release = fixed & (((u <= 0.0) & (g < 0.0)) | ((u >= ub) & (g > 0.0)))
+        if not out.any() and not release.any():
+            return u
+        fixed = (fixed & ~release) | out
+    return u
+
+
 def _map_to_principled(G, r, yy, metal_steps=41):
     """Best (cost, metallic, specular, base) for one roughness.
 
     Per channel the model is linear in x_c = (diffuse d_c, F0_c): cost_c = x G x - 2 x.r_c + yy_c.
     Principled ties them: d_c = (1 - m) b_c, F0_c = (1 - m) s + m b_c; for each metallic m this
     is linear least squares in (b, s), solved in closed form and clipped to the inputs' ranges."""
-    from scipy.optimize import lsq_linear
-
     best = None
     for m in np.linspace(0.0, 1.0, metal_steps):
         A = np.zeros((4, 4))
@@ -133,11 +153,7 @@ def _map_to_principled(G, r, yy, metal_steps=41):
         A += 1e-12 * np.trace(A) * np.eye(4) + 1e-300
         # box-constrained least squares: |L^T u - L^-1 rhs|^2 is the cost up to a constant
         ub = np.array([1.0, 1.0, 1.0, 0.0 if m >= 1.0 else DIELECTRIC_MAX])
-        u = np.linalg.solve(A, rhs)
-        if np.any(u < 0.0) or np.any(u > ub):
-            L = np.linalg.cholesky(A)
-            u = lsq_linear(L.T, np.linalg.solve(L, rhs), bounds=(np.zeros(4), np.maximum(ub, 1e-12))).x
-            u = np.clip(u, 0.0, ub)
+        u = _box_qp(A, rhs, ub)
         cost = sum(float((M @ u) @ G @ (M @ u) - 2.0 * (M @ u) @ r[c] + yy[c]) for c, M in enumerate(Ms))
         # a grey dielectric and a little metal can be the same BRDF: prefer the dielectric
         if best is None or cost < best[0] - 1e-9 * abs(best[0]) - 1e-15:
