@@ -25,7 +25,7 @@ from .merl import N_CELLS, cell_indices
 from .moments import exponents, monomials, n_monomials
 from .quadrature import RuleParams, graded_tensor_rule, slice_rule
 
-OPERATOR_VERSION = 7  # 7: the half-vector cos(theta_d) no longer goes through BLAS (bit-reproducible)
+OPERATOR_VERSION = 8  # 8: lines split at cell edges (cell-exact along rays and strip lines)
 MAX_ORDER = 4
 
 
