@@ -90,29 +90,16 @@ def _ray_segments(theta_o, phi_h, u_max, u_edges, exact):
     return ray, lo[ray, j], hi[ray, j]
 
 
-def half_vector_rule(theta_o: float, n_phi: int = 360, n_gauss: int = 3, u_edges=None,
-                     exact: bool = True, chunk: int = 720) -> SliceRule:
-    """Tensor rule in (u, phi_h) for the view m(theta_o, 0).
-
-    ``u_edges`` are the panel edges in u (default: the 90 MERL theta_h cells). With ``exact``
-    each ray's panels are also split where the ray crosses a theta_d or phi_d cell edge, so
-    a nearest-cell table is constant on every piece and each ray's integral is exact to
-    Gauss order (only the phi_h direction is a quadrature of a continuous function). Each
-    piece gets ``n_gauss`` Gauss-Legendre nodes, clipped at the horizon; phi_h uses the
-    periodic midpoint rule with ``n_phi`` rays (built ``chunk`` rays at a time, which bounds
-    the temporaries).
-    """
-    if u_edges is None:
-        u_edges = np.linspace(0.0, 1.0, RES_TH + 1)
-    u_edges = np.asarray(u_edges, dtype=float)
-    xg, wg = gauss_legendre(n_gauss)
-    phi_h = (np.arange(n_phi) + 0.5) * (2.0 * np.pi / n_phi)
-    parts = [_ray_nodes(theta_o, phi_h[i:i + chunk], 2.0 * np.pi / n_phi, u_edges, xg, wg, exact)
-             for i in range(0, n_phi, chunk)]
-    return SliceRule(*(np.concatenate([getattr(p, f) for p in parts]) for f in SliceRule.__dataclass_fields__))
-
-
 def _ray_nodes(theta_o, phi_h, dphi, u_edges, xg, wg, exact):
+    """The half-vector rule in (u, phi_h) for the view m(theta_o, 0), on the rays ``phi_h``
+    (each of width ``dphi`` in the midpoint rule).
+
+    Panels in u: ``u_edges`` (the 90 MERL theta_h cells) and, with ``exact``, also every point
+    where a ray crosses a theta_d or phi_d cell edge, so a nearest-cell table is constant on
+    each piece and each ray's integral is exact to Gauss order (only the phi_h direction is a
+    quadrature, of a continuous function). Gauss-Legendre nodes (xg, wg) on each piece,
+    which ends at the horizon.
+    """
     u_max = np.sqrt(horizon_theta_h(theta_o, phi_h) / HALF_PI)  # (n_phi,)
     ray, a, b = _ray_segments(theta_o, phi_h, u_max, u_edges, exact)
     half = 0.5 * (b - a)
@@ -244,7 +231,11 @@ def _line_breaks(cells, lines, lo, hi, n_probe, iters=18):
     only the tips of cells, which are 0.02 rad or more across in the strips.
     """
     t = np.linspace(lo, hi, n_probe + 1)
-    ids = cells(np.tile(t, len(lines)), np.repeat(lines, n_probe + 1)).reshape(len(lines), n_probe + 1)
+    ids = np.empty((len(lines), n_probe + 1), dtype=np.int64)
+    step = max(1, (1 << 17) // (n_probe + 1))  # the cell lookup's temporaries scale with its input
+    for i in range(0, len(lines), step):
+        sub = lines[i:i + step]
+        ids[i:i + step] = cells(np.tile(t, len(sub)), np.repeat(sub, n_probe + 1)).reshape(len(sub), -1)
     line, j = np.nonzero(ids[:, 1:] != ids[:, :-1])
     left, right, id_left, phi = t[j], t[j + 1], ids[line, j], lines[line]
     for _ in range(iters):
@@ -298,6 +289,13 @@ def slice_rule(theta_o: float, params: RuleParams = RuleParams()) -> SliceRule:
     nearest-cell table is integrated exactly along every line (rays in u, strip lines in
     theta); what is left is the quadrature across lines, of a continuous function.
     """
+    parts = list(slice_rule_parts(theta_o, params))
+    return SliceRule(*(np.concatenate([getattr(p, f) for p in parts]) for f in SliceRule.__dataclass_fields__))
+
+
+def slice_rule_parts(theta_o: float, params: RuleParams = RuleParams(), chunk: int = 360):
+    """``slice_rule`` in pieces (``chunk`` rays at a time, then the strips), in the same node
+    order: a grazing view has ~2 M nodes, and building them whole would dominate the peak."""
     from .geometry import half_diff_from_directions, view_centred
 
     a, b = np.radians(params.fade_from), np.radians(params.fade_to)
@@ -309,18 +307,18 @@ def slice_rule(theta_o: float, params: RuleParams = RuleParams()) -> SliceRule:
         g = int(theta_o >= np.radians(80.0) - 1e-9)
         params = replace(params, n_phi=params.n_phi * params.grazing_rays[g],
                          n_panels_phi=params.n_panels_phi * params.grazing_strip[g])
-    near = half_vector_rule(theta_o, params.n_phi, params.n_gauss, exact=params.exact)
-    w_near = near.weight * _fade(np.abs(near.phi), a, b)
-    keep = w_near > 0.0
+    u_edges = np.linspace(0.0, 1.0, RES_TH + 1)
+    xg, wg = gauss_legendre(params.n_gauss)
+    phi_h = (np.arange(params.n_phi) + 0.5) * (2.0 * np.pi / params.n_phi)
+    for i in range(0, params.n_phi, chunk):
+        near = _ray_nodes(theta_o, phi_h[i:i + chunk], 2.0 * np.pi / params.n_phi, u_edges, xg, wg, params.exact)
+        w_near = near.weight * _fade(np.abs(near.phi), a, b)
+        keep = w_near > 0.0
+        yield SliceRule(near.theta[keep], near.phi[keep], w_near[keep], near.theta_h[keep], near.theta_d[keep],
+                        near.phi_d[keep])
+        del near
 
     T, P, w_far = _strip_rule(theta_o, params, a, b)
     wi = view_centred(T, P)
     th, td, pd = half_diff_from_directions(wi, np.broadcast_to(view_centred(theta_o, 0.0), wi.shape))
-    return SliceRule(
-        np.concatenate((near.theta[keep], T)),
-        np.concatenate((near.phi[keep], P)),
-        np.concatenate((w_near[keep], w_far)),
-        np.concatenate((near.theta_h[keep], th)),
-        np.concatenate((near.theta_d[keep], td)),
-        np.concatenate((near.phi_d[keep], pd)),
-    )
+    yield SliceRule(T, P, w_far, th, td, pd)
