@@ -146,6 +146,7 @@ def bench_tables(quick, names=None):
     from .core.integrate import default_cache_dir, default_views, grid_sums, table_slice_evaluator
     from .core.merl import read_merl
     from .core.profiles import _stats, compute_profiles, diffuse_floor, monte_carlo_profiles, specular_values
+    from .core.quadrature import RuleParams
 
     names = names or (("lambertian", "ggx_mirror", "ggx_rough") if quick else
                       ("lambertian", "phong", "ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "red_plastic"))
@@ -169,6 +170,13 @@ def bench_tables(quick, names=None):
         e = np.max([_errors({k: prof[ch][k][pick] for k in ("alpha", "mu_theta", "sigma_tt", "sigma_pp")},
                             ref_at(i)) for i, ch in enumerate(("r", "g", "b", "avg"))], axis=0)
         rows.append((name, "this project (cached operator)", t, e))
+        # The operator of version 7, for comparison in the same run: lines point-sampled at cell edges.
+        old = RuleParams(exact=False)
+        compute_profiles(table, split=split, params=old)
+        t, prof = _median_time(lambda: compute_profiles(table, split=split, params=old), 3 if quick else 7)
+        e = np.max([_errors({k: prof[ch][k][pick] for k in ("alpha", "mu_theta", "sigma_tt", "sigma_pp")},
+                            ref_at(i)) for i, ch in enumerate(("r", "g", "b", "avg"))], axis=0)
+        rows.append((name, "cached operator, point-sampled edges (v7)", t, e))
         evaluate = table_slice_evaluator(values)
         for n in ((100_000,) if quick else (100_000, 1_000_000)):
             t0 = time.perf_counter()

@@ -228,8 +228,15 @@ def test_operator_streamed_into_the_cache_equals_the_in_memory_build(tmp_path):
     _MEMO.clear()
     cached = get_operator(views, cache_dir=str(tmp_path))
     fresh = build_operator(views)
-    for k in ("offsets", "cells", "weights", "albedo", "centroid", "local"):
+    for k in ("offsets", "cells"):
         np.testing.assert_array_equal(np.asarray(getattr(cached, k)), np.asarray(getattr(fresh, k)), err_msg=k)
+    # Since operator version 8 the strip lines' cell edges are found by bisection on the cell
+    # index, whose trig numpy's SIMD loops may round differently with memory alignment: a
+    # probe that lands within an ulp of an edge can move a break point by one bisection step
+    # (6e-9 rad). Seen: 1093 of 1.1 M moments about the centroids differ, by <= 3.5e-18.
+    for k in ("weights", "albedo", "centroid", "local"):
+        a, b = np.asarray(getattr(cached, k), float), np.asarray(getattr(fresh, k), float)
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-12 * np.abs(b).max(), err_msg=k)
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".tmp-")]
     _MEMO.clear()
 

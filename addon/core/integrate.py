@@ -23,9 +23,9 @@ import numpy as np
 from .geometry import HALF_PI, half_diff_from_directions, view_centred
 from .merl import N_CELLS, cell_indices
 from .moments import exponents, monomials, n_monomials
-from .quadrature import RuleParams, graded_tensor_rule, slice_rule
+from .quadrature import RuleParams, SliceRule, graded_tensor_rule, slice_rule_parts
 
-OPERATOR_VERSION = 7  # 7: the half-vector cos(theta_d) no longer goes through BLAS (bit-reproducible)
+OPERATOR_VERSION = 8  # 8: lines split at cell edges (cell-exact along rays and strip lines)
 MAX_ORDER = 4
 
 
@@ -83,10 +83,21 @@ class SliceOperator:
 
 
 def _build_view(theta_o, params):
-    rule = slice_rule(theta_o, params)
-    cells = cell_indices(rule.theta_h, rule.theta_d, rule.phi_d)
+    # The rule piece by piece, keeping only what the sums need (x, phi, weight, cell).
+    xs, ps, ws, cs = [], [], [], []
+    for part in slice_rule_parts(theta_o, params):
+        cs.append(cell_indices(part.theta_h, part.theta_d, part.phi_d))
+        xs.append(part.theta + theta_o)
+        ps.append(part.phi)
+        ws.append(part.weight)
+        del part
+    rule = SliceRule(np.concatenate(xs), np.concatenate(ps), np.concatenate(ws), None, None, None)
+    cells = np.concatenate(cs)
+    del xs, ps, ws, cs
     uniq, inv = np.unique(cells, return_inverse=True)
-    x = rule.theta + theta_o
+    del cells
+    x = rule.theta
+    rule.theta = None
     agg = np.empty((len(uniq), n_monomials(MAX_ORDER)), dtype=np.float32)
     # One monomial at a time: materialising all 15 for ~600k nodes would dominate the peak.
     xp = rule.weight.copy()
@@ -97,7 +108,7 @@ def _build_view(theta_o, params):
             wp *= rule.phi
         xp *= x
     # cos(theta_i) dw = cos(theta) cos(phi) * cos(phi) dtheta dphi: albedo from the same cells.
-    alb = np.bincount(inv, weights=rule.weight * np.cos(rule.theta) * np.cos(rule.phi) ** 2, minlength=len(uniq))
+    alb = np.bincount(inv, weights=rule.weight * np.cos(x - theta_o) * np.cos(rule.phi) ** 2, minlength=len(uniq))
     # Centroid of each cell's part, rounded to what is stored, and moments about it: exact
     # for the stored centre, so nothing is lost when sums are later moved to another centre.
     mass = np.bincount(inv, weights=rule.weight, minlength=len(uniq))
