@@ -41,6 +41,7 @@ UNITS = np.array([0.02, 0.02, 0.02])
 # Smoothness across theta_d rings (second differences), in the controls' own units.
 SMOOTH = np.array([0.05, 0.05, 0.05])   # log s, q~, log G
 DAMPING = 0.3
+GAIN_DAMPING = 1e-3
 ROBUST = 3.0   # residual (in UNITS) beyond which a view's pull stops growing
 LOG_S_RANGE = (-2.3, 1.2)   # width scale 0.1 .. 3.3
 Q_RANGE = (-4.0, 4.0)
@@ -293,7 +294,7 @@ def channel_gains(transform: Transform, rings: RingSums, c: Controls, goal_alpha
         Mb = M * base[None, :]
         rhs = w * goal - Mb.sum(axis=1)
         H = Mb.T @ Mb + (reg * base[None, :]).T @ (reg * base[None, :])
-        H[np.diag_indices_from(H)] += DAMPING * (np.diag(H) + 1.0)
+        H[np.diag_indices_from(H)] += GAIN_DAMPING * (np.diag(H) + 1.0)  # a linear fit: barely damped
         y = np.linalg.solve(H, Mb.T @ rhs - (reg * base[None, :]).T @ (reg @ base))
         out[:, ch] = np.log(np.maximum(base * (1.0 + y), 1e-12))
     return out
