@@ -13,9 +13,10 @@ belongs to. The transform, per channel c:
 - G_c(d): energy gains (the 1/s^2 keeps a small lobe's energy as its width changes).
 
 Near the specular lobe theta_d ~ theta_o, so controls indexed by theta_d act almost per view.
-All three are per theta_d ring (90 values), solved by a fixed number of damped Gauss-Newton
-steps on every view's re-measured energy, mean and average variance, with a smoothness penalty
-across rings. The sensitivities are exact: the profile operator is linear in the table's values
+Each is a hat spline over theta_d (KNOTS knots) added to a per-view start, solved by a fixed
+number (STEPS) of damped Gauss-Newton steps on every view's re-measured energy, mean and average
+variance, with a pseudo-Huber loss and a smoothness penalty across knots; the per-channel gains
+are then a linear least-squares fit of every view's energy. The sensitivities are exact: the profile operator is linear in the table's values
 (sums = weights @ values), so d sums / d control = weights @ (d values / d control).
 A fixed number of steps from a fixed start, with fixed damping: the map from sliders to table
 is continuous (no bisection, no picking among rounds).
