@@ -1,4 +1,7 @@
-"""Moment editing (SPEC §3 "Editing"): re-synthesize a tabulated BRDF from slider targets.
+"""THE REPLACED DESIGN (issue 18), kept for the benchmark's comparison (``bench --only edit``,
+``edit-legacy``); ``addon.core.edit.edit`` is the reciprocal synthesis.
+
+Moment editing (SPEC §3 "Editing"): re-synthesize a tabulated BRDF from slider targets.
 
 Warp mode keeps the measured shape. At each view the measured specular slice is moved
 along theta so its mean follows the new slope (the measured deviation from the line is

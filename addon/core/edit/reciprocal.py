@@ -13,9 +13,10 @@ belongs to. The transform, per channel c:
 - G_c(d): energy gains (the 1/s^2 keeps a small lobe's energy as its width changes).
 
 Near the specular lobe theta_d ~ theta_o, so controls indexed by theta_d act almost per view.
-All three are per theta_d ring (90 values), solved by a fixed number of damped Gauss-Newton
-steps on every view's re-measured energy, mean and average variance, with a smoothness penalty
-across rings. The sensitivities are exact: the profile operator is linear in the table's values
+Each is a hat spline over theta_d (KNOTS knots) added to a per-view start, solved by a fixed
+number (STEPS) of damped Gauss-Newton steps on every view's re-measured energy, mean and average
+variance, with a pseudo-Huber loss and a smoothness penalty across knots; the per-channel gains
+are then a linear least-squares fit of every view's energy. The sensitivities are exact: the profile operator is linear in the table's values
 (sums = weights @ values), so d sums / d control = weights @ (d values / d control).
 A fixed number of steps from a fixed start, with fixed damping: the map from sliders to table
 is continuous (no bisection, no picking among rounds).
@@ -41,6 +42,7 @@ UNITS = np.array([0.02, 0.02, 0.02])
 # Smoothness across theta_d rings (second differences), in the controls' own units.
 SMOOTH = np.array([0.05, 0.05, 0.05])   # log s, q~, log G
 DAMPING = 0.3
+GAIN_DAMPING = 1e-3
 ROBUST = 3.0   # residual (in UNITS) beyond which a view's pull stops growing
 LOG_S_RANGE = (-2.3, 1.2)   # width scale 0.1 .. 3.3
 Q_RANGE = (-4.0, 4.0)
@@ -293,7 +295,7 @@ def channel_gains(transform: Transform, rings: RingSums, c: Controls, goal_alpha
         Mb = M * base[None, :]
         rhs = w * goal - Mb.sum(axis=1)
         H = Mb.T @ Mb + (reg * base[None, :]).T @ (reg * base[None, :])
-        H[np.diag_indices_from(H)] += DAMPING * (np.diag(H) + 1.0)
+        H[np.diag_indices_from(H)] += GAIN_DAMPING * (np.diag(H) + 1.0)  # a linear fit: barely damped
         y = np.linalg.solve(H, Mb.T @ rhs - (reg * base[None, :]).T @ (reg @ base))
         out[:, ch] = np.log(np.maximum(base * (1.0 + y), 1e-12))
     return out
