@@ -140,7 +140,7 @@ def test_keras_layouts_give_the_layers_in_chain_order(layout):
 
 
 def test_keras_h5(tmp_path):
-    h5py = pytest.importorskip("h5py")
+    import h5py  # in requirements.txt: the Keras path is tested for real, never skipped
     net = nbrdf.load_network(RGL, "satin_blue")
     path = tmp_path / "satin_blue.h5"
     # The layout Keras' save_weights writes: a group per layer, layer names numbered freely.
