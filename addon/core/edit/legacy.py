@@ -34,6 +34,8 @@ from ..geometry import HALF_PI, directions_from_half_diff, view_centred_angles
 from ..merl import MerlTable, cell_centres, cell_indices_view
 from ..profiles import Profiles, compute_profiles, specular_values
 from .. import truncated as _truncated
+from .reach import cell_variance_floor
+from .solve import directional_albedo  # one home each, shared with the reciprocal edit
 from .targets import MIN_SIGMA2, MODES, EditTargets, resolve_targets, target_energy  # noqa: F401 (re-exported)
 
 @dataclass
@@ -523,19 +525,6 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     return res
 
 
-def cell_variance_floor(theta_o, mean):
-    """Per view, the smallest lobe variance a nearest-cell table can hold at that lobe centre.
-
-    A cell's value is the lobe at the cell centre, so a lobe that falls between centres
-    vanishes from the table. Near the lobe, moving the lit direction by d(theta) moves the
-    half vector by d(theta)/2, and MERL's theta_h cells are square-root spaced: 2e-4 rad at
-    the mirror, 0.035 rad at the pole. Half a cell width as the floor on sigma keeps a
-    centre within one sigma of any lobe."""
-    theta_h = np.clip(np.abs(np.asarray(theta_o, float) + np.asarray(mean, float)) / 2.0, 0.0, HALF_PI)
-    step_h = np.maximum(2.0 * np.sqrt(theta_h / HALF_PI) * HALF_PI / 90.0, HALF_PI / 90.0 ** 2)
-    return (0.5 * 2.0 * step_h) ** 2
-
-
 def _energy_ratio(new_prof, alpha_target):
     """(views, 3): wanted over re-measured energy, clipped to [1/4, 4]; 1 where either is ~0."""
     got = np.stack([np.nan_to_num(np.asarray(new_prof[c]["alpha"], float)) for c in "rgb"], axis=1)
@@ -772,20 +761,6 @@ def _tabulate(table, evaluate, kd, grid, geometric=False):
     valid = table.valid.copy()
     rho *= valid
     return MerlTable(rho, valid, None)
-
-
-def directional_albedo(table: MerlTable, views=None) -> np.ndarray:
-    """(views, 3): integral of rho cos(theta_i) over the hemisphere for each view."""
-    from ..integrate import default_views, get_operator
-
-    views = default_views(30, 89.0) if views is None else np.asarray(views, float)
-    op = get_operator(views, memo=False)
-    full = np.where(table.valid, table.rho, 0.0).T
-    out = np.empty((len(views), 3))
-    for k in range(len(views)):
-        cells, w = op.albedo_view(k)
-        out[k] = full[cells].T @ np.asarray(w, dtype=float)
-    return out
 
 
 def _finish(out, targets, mu_t, s2_t, warnings, prof, remeasure):
