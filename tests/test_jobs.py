@@ -291,3 +291,32 @@ def test_esc_kills_the_child_at_once_and_errors_come_back_as_reports(job_class):
     op.invoke(ctx, _Event("NONE"))
     assert _drive(op, ctx) == {"CANCELLED"}
     assert op.reports == [({"ERROR"}, "the worker process ended without a result (exit code 3)")]
+
+
+def test_a_large_result_comes_back_whole_with_its_arrays_out_of_band(job_class):
+    """Build Preview returns two MERL tables (~100 MB): they come back through the pipe as
+    out-of-band buffers (pickle protocol 5), every kind of array intact."""
+    import numpy as np
+
+    rng = np.random.default_rng(7)
+    big = rng.standard_normal((3, 1_458_000))            # one MERL table's worth of float64
+    strided = rng.standard_normal((50, 40))[:, ::3]      # not contiguous: pickled in band
+    parts = {"big": big, "f32": big[0].astype(np.float32), "strided": strided, "empty": np.zeros((0, 3)),
+             "mask": big[1] > 0, "scalar": np.float64(2.5), "text": "kd", "nested": [big[2, :5], (1, 2)]}
+
+    def work(report_progress):
+        report_progress(1, 2)
+        return parts
+
+    op, ctx = job_class(work), _Context()
+    op.use_process = True
+    op.invoke(ctx, _Event("NONE"))
+    assert _drive(op, ctx, until=60) == {"FINISHED"}
+    got = op.finished_with
+    assert set(got) == set(parts)
+    for key in ("big", "f32", "strided", "empty", "mask"):
+        assert got[key].dtype == parts[key].dtype and got[key].shape == parts[key].shape, key
+        assert np.array_equal(got[key], parts[key]), key
+    got["big"][0, 0] = 1.0  # the parent owns writable arrays
+    assert got["scalar"] == 2.5 and got["text"] == "kd" and np.array_equal(got["nested"][0], big[2, :5])
+    assert got["nested"][1] == (1, 2)
