@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import math
 
-import bmesh
 import bpy
+import numpy as np
 
 from ..compat import fix_sampling_pattern, node_tree
 
@@ -58,16 +58,34 @@ def sphere_mesh():
     mesh = bpy.data.meshes.get(SPHERE_MESH)
     if mesh is None:
         mesh = bpy.data.meshes.new(SPHERE_MESH)
-        bm = bmesh.new()
-        try:
-            # Fine facets keep the silhouette round; shading uses the exact normal anyway.
-            bmesh.ops.create_uvsphere(bm, u_segments=128, v_segments=64, radius=1.0)
-            bm.to_mesh(mesh)
-        finally:
-            bm.free()
+        verts, faces = uv_sphere(128, 64)
+        # from_pydata, not bmesh.ops.create_uvsphere: the latter took 0.28 s in Blender 3.4
+        # (Build Preview's finish, on the main thread: a frozen window); this takes ~0.03 s.
+        mesh.from_pydata(verts.tolist(), [], faces)
         mesh.polygons.foreach_set("use_smooth", [True] * len(mesh.polygons))
         mesh.update()
     return mesh
+
+
+def uv_sphere(u_segments, v_segments):
+    """Unit sphere about the z axis: vertices (N, 3) and faces (triangles at the poles, quads
+    between), wound counter-clockwise seen from outside (outward normals). Fine facets keep the
+    silhouette round; shading uses the exact normal anyway."""
+    nu, nv = int(u_segments), int(v_segments)
+    theta = np.arange(1, nv) * (math.pi / nv)                     # the rings, pole to pole
+    phi = np.arange(nu) * (2.0 * math.pi / nu)
+    ring = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
+                     np.repeat(np.cos(theta)[:, None], nu, axis=1)], axis=-1).reshape(-1, 3)
+    verts = np.concatenate([ring, [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]])
+    top, bottom = len(ring), len(ring) + 1
+
+    def v(i, j):
+        return i * nu + j % nu
+
+    faces = [(top, v(0, j), v(0, j + 1)) for j in range(nu)]
+    faces += [(v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1)) for i in range(nv - 2) for j in range(nu)]
+    faces += [(bottom, v(nv - 2, j + 1), v(nv - 2, j)) for j in range(nu)]
+    return verts, faces
 
 
 def sphere_name(k):
