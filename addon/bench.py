@@ -26,7 +26,8 @@ import time
 import numpy as np
 
 ALL_SECTIONS = ("closed", "tables", "memory", "fits", "edit", "preview", "measured", "artist")
-EXTRA_SECTIONS = ("edit-legacy",)  # run only when asked for with --only
+# "live" is part of "artist" (its last table); alone it needs no bpy
+EXTRA_SECTIONS = ("edit-legacy", "live")  # run only when asked for with --only
 
 
 def _median_time(fn, repeat):
@@ -575,6 +576,12 @@ def _bench_measured(quick):
     return bench_measured(quick)
 
 
+def _bench_live(quick):
+    from .bench_artist import bench_live
+
+    return bench_live(quick)
+
+
 def _bench_artist(quick):
     from .bench_artist import bench_artist
 
@@ -593,6 +600,6 @@ def main(args):
                  "memory": bench_memory, "fits": lambda: bench_fits(args.quick),
                  "edit": lambda: bench_edit(args.quick), "edit-legacy": lambda: bench_edit_legacy(args.quick),
                  "preview": lambda: _bench_preview(args.quick), "measured": lambda: _bench_measured(args.quick),
-                 "artist": lambda: _bench_artist(args.quick)}[name]()
+                 "artist": lambda: _bench_artist(args.quick), "live": lambda: _bench_live(args.quick)}[name]()
         print("\n".join(lines) + "\n", flush=True)
     return 0

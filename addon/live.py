@@ -30,11 +30,25 @@ def preview_image_name(mat):
     return f"BRDF Moments preview: {mat.name}"
 
 
-def fast_edit(table, targets, prof, fit):
-    """The edit's synthesis, not re-measured: what a slider drag can afford."""
+def fast_edit(table, targets, prof, fit, draft=False, region=None):
+    """The edit's synthesis, not re-measured: what a slider drag can afford (``draft``: the
+    quick, rougher solve shown first)."""
     from .core.edit import edit
 
-    return edit(table, targets, prof, fit, remeasure=False).table
+    return edit(table, targets, prof, fit, remeasure=False, draft=draft, region=region).table
+
+
+_REGIONS = {}     # the reachable region of the material being dragged (computed once, not per move)
+
+
+def _region(prof, fit, mode):
+    from .core.edit.reach import reachable_region
+
+    key = (id(prof), fit.get("mu_slope"), fit.get("sigma2"), mode)
+    if key not in _REGIONS:
+        _REGIONS.clear()
+        _REGIONS[key] = reachable_region(prof, fit, mode=mode)
+    return _REGIONS[key]
 
 
 def upsample(tile, d):
@@ -144,17 +158,22 @@ def _work(job, stale=lambda: False, post=lambda stage, rgb, cov: None):
     from .core.render import TableBRDF, bake_sphere
 
     table = _table(job["source"])
-    new = fast_edit(table, job["targets"], job["prof"], job["fit"])
+    targets, prof, fit = job["targets"], job["prof"], job["fit"]
+    region = _region(prof, fit, targets.mode)
+    # First a draft synthesis at a quarter of the resolution (what a drag can show within about
+    # a second), then the full synthesis at full resolution: the table Apply writes.
+    new = fast_edit(table, targets, prof, fit, draft=True, region=region)
     if stale():
         return
-    brdf = TableBRDF(new, job["prof"])
     d = job["d"]
-    d0 = max(d // LIVE_DIAMETER_DIV, 8)
-    rgb, cov = bake_sphere(brdf, job["env"], d0, LIVE_SAMPLES, 0)
+    rgb, cov = bake_sphere(TableBRDF(new, prof), job["env"], max(d // LIVE_DIAMETER_DIV, 8), LIVE_SAMPLES, 0)
     post("live", rgb, cov)
     if stale():
         return
-    rgb, cov = bake_sphere(brdf, job["env"], d, FINAL_SAMPLES, 0)
+    new = fast_edit(table, targets, prof, fit, region=region)
+    if stale():
+        return
+    rgb, cov = bake_sphere(TableBRDF(new, prof), job["env"], d, FINAL_SAMPLES, 0)
     post("refined", rgb, cov)
 
 

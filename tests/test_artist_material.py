@@ -213,7 +213,7 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     np.testing.assert_array_equal(after[body, l0:l0 + d], before[body, l0:l0 + d])
     # the edited sphere: the bake of one synthesis round of the new sliders, upsampled
     table = read_merl(state.source_path)
-    new = live.fast_edit(table, EditTargets(sigma2=state.sigma2), state.profiles(), state.fit())
+    new = live.fast_edit(table, EditTargets(sigma2=state.sigma2), state.profiles(), state.fit(), draft=True)
     env = load_environment(resolve_environment(None))
     rgb, cov = bake_sphere(TableBRDF(new, state.profiles()), env, max(d // live.LIVE_DIAMETER_DIV, 8),
                            live.LIVE_SAMPLES, 0)

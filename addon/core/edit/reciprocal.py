@@ -86,7 +86,7 @@ class Transform:
         self.ring_var = np.maximum(np.asarray(ring_var, float), 1e-8)  # (90,) the measured variance per ring
         self.ih = np.arange(RES_TH, dtype=float) + 0.5
 
-    def _interp(self, log_s):
+    def _interp(self, log_s, derivative=True):
         """Values at theta_h / s per ring: (90, 90, 180, C) and d/d(log s) of the lookup.
 
         Catmull-Rom along the ring index, so that the lookup and its derivative are continuous in
@@ -97,41 +97,54 @@ class Transform:
         s = np.exp(log_s)
         p = self.ih[:, None] / np.sqrt(s)[None, :] - 0.5            # (ih, id) fractional ring
         dp = -0.5 * (p + 0.5)                                        # d p / d log s
-        beyond = p > RES_TH - 1.0
+        inside = p <= RES_TH - 1.0
         pc = np.clip(p, -0.5, RES_TH - 1.0)
         i0 = np.floor(pc).astype(np.int64)
-        f = (pc - i0)[:, :, None, None]
+        f = pc - i0
+        f2, f3 = f * f, f * f * f
+        # Catmull-Rom as four weights per (theta_h, theta_d) ring pair: the full-size arrays are
+        # touched once per weight instead of once per polynomial term.
+        w = 0.5 * np.stack([-f + 2.0 * f2 - f3, 2.0 - 5.0 * f2 + 3.0 * f3, f + 4.0 * f2 - 3.0 * f3, f3 - f2])
+        dw = 0.5 * np.stack([-1.0 + 4.0 * f - 3.0 * f2, -10.0 * f + 9.0 * f2, 1.0 + 8.0 * f - 9.0 * f2,
+                             3.0 * f2 - 2.0 * f]) * dp
+        w *= inside
+        dw *= inside
         idx = np.arange(RES_TD)[None, :]
-
-        def ring(j):
+        val = np.zeros(self.spec.shape)
+        dval = np.zeros(self.spec.shape) if derivative else None
+        tmp = np.empty(self.spec.shape)
+        for k in range(4):
+            j = i0 + (k - 1)
             j = np.where(j < 0, -1 - j, np.minimum(j, RES_TH - 1))
-            return self.spec[j, idx]
-
-        v0, v1, v2, v3 = ring(i0 - 1), ring(i0), ring(i0 + 1), ring(i0 + 2)
-        c1 = v2 - v0
-        c2 = 2.0 * v0 - 5.0 * v1 + 4.0 * v2 - v3
-        c3 = -v0 + 3.0 * v1 - 3.0 * v2 + v3
-        val = v1 + 0.5 * f * (c1 + f * (c2 + f * c3))
-        dval = 0.5 * (c1 + f * (2.0 * c2 + 3.0 * f * c3)) * dp[:, :, None, None]
-        # Overshoot below zero is cut (a reflectance); the cut is continuous.
+            v = self.spec[j, idx]
+            np.multiply(v, w[k][:, :, None, None], out=tmp)
+            val += tmp
+            if derivative:
+                np.multiply(v, dw[k][:, :, None, None], out=tmp)
+                dval += tmp
         neg = val < 0.0
-        val[neg] = 0.0
-        dval[neg] = 0.0
-        val[beyond] = 0.0
-        dval[beyond] = 0.0
+        np.copyto(val, 0.0, where=neg)
+        if derivative:
+            np.copyto(dval, 0.0, where=neg)
         return val, dval
 
     def values(self, c: Controls, with_derivatives=False):
         """Specular values (90, 90, 180, C); with derivatives d/d log s and d/d q~ (same shape)."""
-        val, dval = self._interp(c.log_s)
+        val, dval = self._interp(c.log_s, derivative=with_derivatives)
         qr = (c.q / self.ring_var)[None, :, None]
         tilt = np.exp(np.clip(qr * self.L, -700.0, TILT_MAX))            # (ih, id, 180)
         gain = np.exp(c.log_g - 2.0 * c.log_s[:, None])              # (id, C)
-        factor = tilt[..., None] * gain[None, :, None, :]
-        out = val * factor
+        # In place: val and dval are this call's own arrays (full-size temporaries cost more
+        # than the arithmetic here).
+        out = val
+        out *= tilt[..., None]
+        out *= gain[None, :, None, :]
         if not with_derivatives:
             return out
-        d_logs = dval * factor - 2.0 * out
+        d_logs = dval
+        d_logs *= tilt[..., None]
+        d_logs *= gain[None, :, None, :]
+        d_logs -= 2.0 * out
         d_q = out * (self.L / self.ring_var[None, :, None])[..., None]
         return out, d_logs, d_q
 
@@ -156,6 +169,15 @@ class RingSums:
         w = np.asarray(op.weights, dtype=np.float64)[order]
         n_cells = RES_TH * RES_TD * RES_PD
         self.mats = [csr_matrix((w[:, j], idx, indptr), shape=(n, n_cells)) for j in _COLS]
+
+    def subset(self, views):
+        """The same sums for some of the views only (rows sliced; the columns stay all cells)."""
+        views = np.asarray(views, dtype=np.int64)
+        rows = (views[:, None] * RES_TD + np.arange(RES_TD)[None, :]).ravel()
+        out = object.__new__(RingSums)
+        out.n_views, out.theta_o = len(views), self.theta_o[views]
+        out.mats = [m[rows] for m in self.mats]
+        return out
 
     def sums(self, flat_values):
         """(views, 90 rings, 5 monomials[, k]) for per-cell values (N_CELLS,) or (N_CELLS, k)."""
