@@ -41,6 +41,35 @@ def _pair(col, left, right):
     split.label(text=right)
 
 
+def _draw_region(layout, mat, width):
+    """What a reciprocal table of this material can show, and (before Apply) whether the sliders
+    ask for more: then the point Apply will use instead."""
+    from .state import region_image_name
+
+    state = mat.brdf_moments
+    region = state.region()
+    if region is None:
+        return
+    col = layout.column(align=True)
+    point = state.requested_point()
+    s2 = point[0][1] if point else state.sigma2
+    lo, hi = region._range_at(min(max(s2, region.sigma2_min), region.sigma2_max))
+    col.label(text=f"Reachable: σ̃² {region.sigma2_min:.3g} to {region.sigma2_max:.3g}; "
+                   f"μ̃ {lo:+.3f} to {hi:+.3f} at this σ̃²", icon="INFO")
+    if point and point[0] != point[1]:
+        (mu, s2), (mu_c, s2_c) = point
+        wrapped(col, f"The sliders (μ̃ {mu:+.3f}, σ̃² {s2:.4g}) ask for more than a reciprocal table of this "
+                     f"material shows: Apply will use the nearest reachable point, μ̃ {mu_c:+.3f}, σ̃² {s2_c:.4g}",
+                width, icon="ERROR")
+    img = bpy.data.images.get(region_image_name(mat))
+    if img is not None:
+        row = col.row(align=True)
+        row.label(text="Region plot")
+        row.operator("brdf_moments.show_image", text="Open full size", icon="WINDOW").image = img.name
+        if getattr(img, "preview", None) is not None:
+            col.template_icon(icon_value=img.preview.icon_id, scale=8.0)
+
+
 def draw_material(layout, mat, context=None):
     state = mat.brdf_moments
     width = _region_width(context)
@@ -114,6 +143,7 @@ def draw_material(layout, mat, context=None):
         row = col.row(align=True)
         row.label(text="Table texture")
         row.prop(state, "texture_storage", text="")
+    _draw_region(sliders, mat, width)
     row = sliders.row(align=True)
     row.operator("brdf_moments.reset_sliders", icon="LOOP_BACK").material = mat.name
     row.operator("brdf_moments.apply_edit", icon="CHECKMARK").material = mat.name

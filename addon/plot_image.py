@@ -187,3 +187,95 @@ def profile_plot(prof, fit=None, edited=None, width=900, height=780):
             axis = "view elevation θo (degrees)"
             draw_text(c.px, (x0 + x1 - text_width(axis, s)) // 2, bottom + 8 + line_h, axis, TEXT, s)
     return c.px, charts
+
+
+REGION_FILL = (0.25, 0.42, 0.62)
+REGION_EDGE = (0.45, 0.7, 1.0)
+SLIDER_COLOUR = (1.0, 1.0, 1.0)
+CLAMP_COLOUR = (1.0, 0.35, 0.3)
+CORRELATION_COLOUR = (0.7, 0.7, 0.7)
+
+
+def region_plot(region, slider=None, used=None, correlation_a=None, width=600, height=420):
+    """The reachable region on the (mean slope, variance) plane, as RGBA float32 (row 0 on top).
+
+    The region (filled, outlined), the correlation quadratic with coefficient ``correlation_a``
+    (dashed), the fitted point (orange), the sliders (white ring) and, when the sliders lie
+    outside, the nearest reachable point Apply will use (red, joined to the sliders). The
+    variance axis is logarithmic: regions span two decades."""
+    from .core.fits import LAMBERT_VARIANCE, correlation_curve
+    from .plot_font import ADVANCE, draw_text, text_width
+
+    c = Canvas(width, height)
+    s = max(1, int(round(width / 450)))
+    line_h = 9 * s
+    mu_b, s2_b = region.boundary()
+    m_fit, s_fit = region.fitted
+    pts_mu = [v for v in np.concatenate([mu_b, [m_fit, -1.0, 0.0], [p[0] for p in (slider, used) if p]])
+              if np.isfinite(v)]
+    x_lo, x_hi = min(pts_mu) - 0.05, max(pts_mu) + 0.05
+    s2_all = [v for v in np.concatenate([region.sigma2, [s_fit, LAMBERT_VARIANCE], [p[1] for p in (slider, used) if p]])
+              if np.isfinite(v) and v > 0]
+    y_lo, y_hi = math.log10(min(s2_all)) - 0.05, math.log10(max(s2_all)) + 0.05
+    left, right, top, bottom = 7 * ADVANCE * s + 10, 12, 3 * line_h + 8, height - 2 * line_h - 14
+    x0, x1 = left, width - right - 1
+
+    def px(mu, s2):
+        mu, s2 = np.asarray(mu, float), np.maximum(np.asarray(s2, float), 1e-300)
+        return (x0 + (mu - x_lo) / (x_hi - x_lo) * (x1 - x0),
+                bottom - (np.log10(s2) - y_lo) / (y_hi - y_lo) * (bottom - top))
+
+    # the region, row by row: each pixel row is one variance
+    for row in range(top + 1, bottom):
+        s2 = 10.0 ** (y_lo + (bottom - row) / (bottom - top) * (y_hi - y_lo))
+        if not region.sigma2_min <= s2 <= region.sigma2_max:
+            continue
+        lo, hi = region._range_at(s2)
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            continue
+        a, b = (int(round(float(v))) for v in (px(lo, s2)[0], px(hi, s2)[0]))
+        a, b = max(a, x0 + 1), min(b, x1 - 1)
+        if b >= a:
+            c.px[row, a:b + 1, :3] = 0.55 * c.px[row, a:b + 1, :3] + 0.45 * np.asarray(REGION_FILL)
+    c.clip = (0, 0, width - 1, height - 1)
+    draw_text(c.px, x0, 6, "reachable (mean slope, variance) for this material", TEXT, s)
+    for mu in (-1.5, -1.0, -0.5, 0.0):             # x ticks
+        if x_lo <= mu <= x_hi:
+            gx = int(round(float(px(mu, 1.0)[0])))
+            c.px[top:bottom, gx] = GRID
+            c.px[bottom:bottom + 4, gx] = FRAME
+            label = f"{mu:g}"
+            draw_text(c.px, gx - text_width(label, s) // 2, bottom + 6, label, TEXT, s)
+    for e in range(math.ceil(y_lo), math.floor(y_hi) + 1):   # y ticks: decades
+        gy = int(round(float(px(0.0, 10.0 ** e)[1])))
+        c.px[gy, x0:x1] = GRID
+        label = _tick(10.0 ** e)
+        draw_text(c.px, x0 - 6 - text_width(label, s), min(max(gy - 3 * s, 0), height - 7 * s), label, TEXT, s)
+    axis = "mean slope μ~ (x), variance σ~² (y, log)"
+    draw_text(c.px, (x0 + x1 - text_width(axis, s)) // 2, bottom + 8 + line_h, axis, TEXT, s)
+    c.rect(x0, top, x1, bottom, FRAME)
+    c.clip = (x0 + 1, top + 1, x1 - 1, bottom - 1)
+    c.polyline(*px(mu_b, s2_b), REGION_EDGE, width=1.5 * s)
+    if correlation_a is not None and np.isfinite(correlation_a):
+        mus = np.linspace(x_lo, x_hi, 200)
+        curve = correlation_curve(mus, correlation_a)
+        c.polyline(*px(mus, np.where(curve > 0, curve, np.nan)), CORRELATION_COLOUR, width=1.0 * s, dashed=True)
+    if slider and used and (abs(slider[0] - used[0]) > 1e-9 or abs(slider[1] - used[1]) > 1e-12):
+        c.polyline(*px([slider[0], used[0]], [slider[1], used[1]]), CLAMP_COLOUR, width=1.0 * s)
+        c.dot(*px(used[0], used[1]), CLAMP_COLOUR, radius=4.0 * s)
+    c.dot(*px(m_fit, s_fit), FIT_COLOUR, radius=4.0 * s)
+    if slider:
+        x, y = px(slider[0], slider[1])
+        ang = np.linspace(0.0, 2 * math.pi, 60)
+        c.dot(x + 6.0 * s * np.cos(ang), y + 6.0 * s * np.sin(ang), SLIDER_COLOUR, radius=0.8 * s)
+    # legend, on the second line
+    c.clip = (0, 0, width - 1, height - 1)
+    lx, ly = x0, 6 + line_h + 4
+    items = [("fit", FIT_COLOUR), ("sliders", SLIDER_COLOUR), ("Apply uses", CLAMP_COLOUR)]
+    if correlation_a is not None and np.isfinite(correlation_a):
+        items.append((f"correlation a={correlation_a:.3g}", CORRELATION_COLOUR))
+    for label, colour in items:
+        c.dot(np.array([lx + 4.0 * s]), np.array([ly + line_h / 2.0]), colour, radius=3.0 * s)
+        draw_text(c.px, lx + 12 * s, ly, label, TEXT, s)
+        lx += 12 * s + text_width(label, s) + 16 * s
+    return c.px

@@ -97,10 +97,14 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     lock: bpy.props.BoolProperty(name="Follow correlation", default=False, update=lambda self, ctx: _slider_moved(self),
                                  description="move the variance with the mean slope along the correlation quadratic")
     correlation_a: bpy.props.FloatProperty(
-        name="Correlation a", default=0.0,
+        name="Correlation a", default=0.0, update=lambda self, ctx: _slider_moved(self) if self.lock else region_image(
+            self.id_data),
         description="the quadratic's a in σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12 (fit a set with 'python -m addon fit')")
     mode: bpy.props.EnumProperty(name="Mode", items=[("warp", "Warp", "keep the measured shape"),
-                                                     ("model", "Model", "paper Eq. 7")], default="warp")
+                                                     ("model", "Model", "paper Eq. 7")], default="warp",
+                                 update=lambda self, ctx: _slider_moved(self))
+    # The reachable region per mode (JSON of core.edit.reach.ReachableRegion), from the analysis.
+    region_data: bpy.props.StringProperty(options={"HIDDEN"})
     # The last re-synthesis (Apply).
     edited_path: bpy.props.StringProperty(name="Edited table", subtype="FILE_PATH")
     edited_profiles_data: bpy.props.StringProperty(options={"HIDDEN"})
@@ -205,6 +209,36 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         self.sigma2 = clamp_sigma2(self.fit_sigma2)
         self.lock = False
 
+    def region(self):
+        """The reachable region for the current mode, or None (not analysed, no lobe, damaged)."""
+        import json
+
+        from .core.edit.reach import ReachableRegion
+
+        try:
+            data = json.loads(self.region_data) if self.region_data else {}
+            return ReachableRegion.from_json(data[self.mode]) if self.mode in data else None
+        except (ValueError, TypeError, KeyError):
+            return None
+
+    def requested_point(self):
+        """((mu, sigma2) the sliders ask for, (mu, sigma2) Apply will use) or None: the region's
+        clamp, as ``edit`` does it, so the panel says so before Apply."""
+        from .core.edit.targets import resolve_targets
+
+        region = self.region()
+        if region is None:
+            return None
+        targets = self.slider_targets()
+        if targets.is_energy_only() or targets.is_identity():
+            return None
+        try:
+            mu, s2, _ = resolve_targets(targets, self.fit())
+        except ValueError:
+            return None
+        mu_c, s2_c, _ = region.clamp(mu, s2)
+        return (mu, s2), (mu_c, s2_c)
+
     def slider_targets(self):
         """The sliders as engine targets; a slider still at its fitted value stays exact."""
         from .core.edit import EditTargets
@@ -224,10 +258,12 @@ def _floor_changed(state):
 
 
 def _slider_moved(state):
-    """A slider moved: the panel's preview image follows (one synthesis round and a quick bake,
-    in a thread: ``live``); an OSL sketch preview scene only gets new node inputs."""
+    """A slider moved: the region plot shows the new point; the panel's preview image follows
+    (a draft synthesis and a quick bake, in a thread: ``live``); an OSL sketch preview scene
+    only gets new node inputs."""
     if not state.analysed:
         return
+    region_image(state.id_data)
     if state.preview_mode == "TABULATED":
         from . import live
 
@@ -267,6 +303,42 @@ def plot_image(mat, prof=None, fit=None, edited=None, width=PLOT_SIZE[0], height
             bpy.data.images.remove(img)
         img = bpy.data.images.new(name, width, height, alpha=True, float_buffer=False)
     img.pixels.foreach_set(np.ascontiguousarray(px[::-1]).ravel())  # Blender's rows start at the bottom
+    img.update()
+    img.use_fake_user = True
+    if hasattr(img, "preview_ensure"):
+        img.preview_ensure()
+        img.preview.reload()
+    return img
+
+
+REGION_PLOT_SIZE = (600, 420)
+
+
+def region_image_name(mat):
+    return f"BRDF Moments region: {mat.name}"
+
+
+def region_image(mat):
+    """The reachable-region plot for ``mat`` (kept in the .blend), or None without a region.
+    Redrawn when a slider moves (~30 ms): it shows where the sliders are."""
+    from .plot_image import region_plot
+
+    state = mat.brdf_moments
+    region = state.region()
+    if region is None:
+        return None
+    point = state.requested_point()
+    slider, used = point if point else ((state.mu_slope, state.sigma2), None)
+    px = region_plot(region, slider, used, correlation_a=state.correlation_a, width=REGION_PLOT_SIZE[0],
+                     height=REGION_PLOT_SIZE[1])
+    name = region_image_name(mat)
+    w, h = REGION_PLOT_SIZE
+    img = bpy.data.images.get(name)
+    if img is None or tuple(img.size) != (w, h):
+        if img is not None:
+            bpy.data.images.remove(img)
+        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=False)
+    img.pixels.foreach_set(np.ascontiguousarray(px[::-1]).ravel())
     img.update()
     img.use_fake_user = True
     if hasattr(img, "preview_ensure"):

@@ -47,26 +47,37 @@ def analysis_work(path, floor="min"):
         # progress bar matters on that first run.
         prof = compute_profiles(table, floor=floor, progress=lambda done, total: report_progress(1 + 97 * done // total, 100))
         fit = fit_material(prof)
+        regions = {}
+        if fit.get("mu_slope") is not None and fit.get("sigma2") is not None:
+            from ..addon.core.edit.reach import reachable_region
+
+            # Once per analysis (0.1-0.2 s each), stored: the panel shows it and says, before
+            # Apply, when the sliders ask for more than a reciprocal table of this material shows.
+            regions = {mode: reachable_region(prof, fit, mode=mode).to_json() for mode in ("warp", "model")}
         report_progress(100, 100)
-        return table.name, prof, fit
+        return table.name, prof, fit, regions
 
     return work
 
 
 def store_analysis(mat, path, result) -> str:
     """Write an analysis into the material (and its plot); returns the line to report."""
-    from ..addon.state import plot_image
+    import json
 
-    name, prof, fit = result
+    from ..addon.state import plot_image, region_image
+
+    name, prof, fit, regions = result
     state = mat.brdf_moments
     # Analysing the same file again keeps the last edit and the sliders; another file starts afresh.
     again = state.analysed and bpy.path.abspath(state.source_path) == bpy.path.abspath(path)
     state.source_path = path
     state.store_analysis(prof, fit, keep_sliders=again)
+    state.region_data = json.dumps(regions)
     if not again:
         state.edited_path = ""
         state.edited_profiles_data = ""
         state.edit_warnings = ""
         state.principled_data = ""
     plot_image(mat, prof, fit, edited=None if again else False)
+    region_image(mat)
     return f"Analysed {name}: μ̃ {state.fit_mu_slope:+.3f}, σ̃² {state.fit_sigma2:.4f}"

@@ -242,3 +242,40 @@ def test_slider_drag_updates_the_osl_preview_without_resynthesis(analysed, tmp_p
     assert tuple(node.inputs["AlphaB"].default_value)[:3] == pytest.approx(want, rel=1e-6)
     edits = os.path.join(os.environ["BRDF_MOMENTS_CACHE"], "edits")
     assert (set(os.listdir(edits)) if os.path.isdir(edits) else set()) == tables_before  # nothing re-synthesized
+
+
+def test_the_reachable_region_is_stored_drawn_and_is_what_apply_clamps_to(analysed):
+    """Analyse stores the material's reachable region (SPEC §3) and draws it; the panel's
+    'Apply will use' point for sliders outside it is the point Apply then clamps to."""
+    from addon.core.edit import reachable_region
+    from addon.core.edit.reach import ReachableRegion
+
+    bpy, mat, src = analysed
+    state = mat.brdf_moments
+    prof = compute_profiles(read_merl(src))
+    fit = fit_material(prof)
+    want = reachable_region(prof, fit)               # computed here, independently of the operator
+    got = state.region()
+    assert type(got).__name__ == ReachableRegion.__name__   # the extension's own copy of the class
+    np.testing.assert_allclose(got.sigma2, want.sigma2, rtol=1e-12)
+    np.testing.assert_allclose(got.mu_min, want.mu_min, rtol=1e-12, equal_nan=True)
+    np.testing.assert_allclose(got.mu_max, want.mu_max, rtol=1e-12, equal_nan=True)
+    state.mode = "model"
+    assert state.region().to_json() == reachable_region(prof, fit, mode="model").to_json()
+    state.mode = "warp"
+    img = bpy.data.images["BRDF Moments region: Rough"]
+    px = np.array(img.pixels[:]).reshape(img.size[1], img.size[0], 4)[..., :3]
+    filled = np.abs(px - np.array([0.16, 0.16, 0.16])).max(axis=-1) > 0.05
+    assert 0.05 < filled.mean() < 0.9                # the region is painted, not the whole frame
+    # At the fit: inside, nothing to say.
+    point = state.requested_point()
+    assert point is None or point[0] == point[1]
+    # Far below the region's variances: outside; the panel's point is Apply's.
+    state.sigma2 = max(got.sigma2_min * 0.2, 1e-6)
+    (mu, s2), (mu_c, s2_c) = state.requested_point()
+    assert (mu_c, s2_c) != (mu, s2) and s2_c >= got.sigma2_min
+    assert bpy.ops.brdf_moments.apply_edit(material="Rough") == {"FINISHED"}
+    assert f"clamped to the nearest reachable point ({mu_c:+.3f}, {s2_c:.4g})" in state.edit_warnings
+    # A damaged stored region is ignored, never a traceback in the panel.
+    state.region_data = '{"warp": {"sigma2": [1, 0]}}'
+    assert state.region() is None and state.requested_point() is None

@@ -118,6 +118,31 @@ class ReachableRegion:
                 "sigma2_min": self.sigma2_min, "sigma2_max": self.sigma2_max, "fitted": list(self.fitted)}
 
 
+    @classmethod
+    def from_json(cls, d: dict) -> "ReachableRegion":
+        """The inverse of ``to_json``; ValueError when ``d`` is not a region (a stored copy may be
+        damaged or edited)."""
+        try:
+            arrays = [np.array([np.nan if v is None else float(v) for v in d[k]]) for k in ("sigma2", "mu_min", "mu_max")]
+            smin, smax = float(d["sigma2_min"]), float(d["sigma2_max"])
+            fitted = tuple(float(v) for v in d["fitted"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError("not a reachable region") from None
+        n = len(arrays[0])
+        if not (1 <= n <= 10_000 and all(len(a) == n for a in arrays) and len(fitted) == 2
+                and np.all(np.isfinite(arrays[0])) and np.all(arrays[0] > 0) and np.all(np.diff(arrays[0]) > 0)
+                and math.isfinite(smin) and math.isfinite(smax) and 0 < smin <= smax):
+            raise ValueError("not a reachable region")
+        return cls(*arrays, smin, smax, fitted)
+
+    def boundary(self):
+        """(mu, sigma2) of the region's outline: up the lower mean-slope edge, down the upper one."""
+        ok = np.isfinite(self.mu_min) & np.isfinite(self.mu_max)
+        s2 = self.sigma2[ok]
+        return (np.concatenate([self.mu_min[ok], self.mu_max[ok][::-1], self.mu_min[ok][:1]]),
+                np.concatenate([s2, s2[::-1], s2[:1]]))
+
+
 def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableRegion:
     """The region for one material's profiles and fit (warp or model targets)."""
     from .targets import EditTargets, view_targets
