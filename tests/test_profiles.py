@@ -192,7 +192,10 @@ def test_only_the_orders_asked_for_are_computed(sample_table, views):
     op = get_operator(views)
     assert table_sums(op, specular_values(table, prof.kd), 2).shape == (len(views), 4, 6)
     full = compute_profiles(table, views)
-    np.testing.assert_allclose(prof["avg"]["sigma_tt"], full["avg"]["sigma_tt"], rtol=1e-6)  # float32 blocking
+    # The same sums, gathered in float32 with 6 columns instead of 15: BLAS may block (and so
+    # accumulate) them in another order. Identical on some CPUs; up to 1.3e-4 at 80-89 deg on
+    # others (measured 2026-12-02), still inside SPEC §6's 0.1 %.
+    np.testing.assert_allclose(prof["avg"]["sigma_tt"], full["avg"]["sigma_tt"], rtol=5e-4)
 
 
 def test_kd_is_the_minimum_of_the_45_degree_slice(sample_table):
@@ -241,3 +244,26 @@ def test_average_channel_with_mixed_missing_masks_uses_only_cells_valid_everywhe
     want = profiles_from_sums(table_sums(op, spec_h), -views[:, None])
     np.testing.assert_allclose(mixed["avg"]["alpha"], want["alpha"][:, 3], rtol=1e-5)
     assert np.all(mixed["avg"]["alpha"] < same["avg"]["alpha"])
+
+
+@pytest.mark.parametrize("name", ["ggx_glossy", "rgl/satin_gold"])
+def test_trilinear_operator_matches_the_point_by_point_reading(sample_table, name):
+    """Tables with the usual mask read trilinear through a cached operator (sums linear in the
+    cells' values); any other mask is read point by point (lookup_angles, renormalised over
+    the measured neighbours). Where the masks agree, so do the two: a cell masked out far
+    from every lobe forces the second path (its own effect is below 1e-7 here)."""
+    from addon.core.merl import MerlTable, horizon_mask
+
+    table = sample_table(name)
+    to = np.radians([10.0, 60.0, 85.0])
+    fast = compute_profiles(table, to, interp="trilinear")
+    holed = MerlTable(table.rho.copy(), table.valid.copy(), None)
+    far = np.flatnonzero(horizon_mask())[-1]          # theta_h, theta_d at the pole, the last phi_d
+    holed.valid[:, far] = False
+    slow = compute_profiles(holed, to, interp="trilinear", kd=fast.kd)
+    assert fast.interp == slow.interp == "trilinear"
+    for key in ("alpha", "mu_theta", "sigma_tt", "sigma_pp", "sigma_tp"):
+        np.testing.assert_allclose(fast["avg"][key], slow["avg"][key], rtol=1e-5, atol=1e-7, err_msg=key)
+    # and trilinear is a different reading from the nearest cell (the test is not vacuous)
+    near = compute_profiles(table, to, kd=fast.kd)
+    assert np.max(np.abs(near["avg"]["sigma_tt"] / fast["avg"]["sigma_tt"] - 1)) > 1e-4

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import HALF_PI, half_diff_from_directions, view_centred
-from .merl import N_CELLS, cell_indices
+from .merl import N_CELLS, cell_indices, horizon_mask, trilinear_corners
 from .moments import exponents, monomials, n_monomials
 from .quadrature import RuleParams, SliceRule, graded_tensor_rule, slice_rule_parts
 
@@ -86,10 +86,26 @@ def _build_view(theta_o, params):
     # The rule piece by piece, keeping only what the sums need (x, phi, weight, cell).
     xs, ps, ws, cs = [], [], [], []
     for part in slice_rule_parts(theta_o, params):
-        cs.append(cell_indices(part.theta_h, part.theta_d, part.phi_d))
-        xs.append(part.theta + theta_o)
-        ps.append(part.phi)
-        ws.append(part.weight)
+        if params.interp == "trilinear":
+            # Each node spreads over its 8 corner cells with its trilinear weights, renormalised
+            # over the cells above the horizon (as lookup_angles renormalises over measured
+            # ones): the sums stay linear in the cells' values, so this is one more operator.
+            idx, frac = trilinear_corners(part.theta_h, part.theta_d, part.phi_d)
+            frac *= horizon_mask()[idx]
+            den = frac.sum(axis=0)
+            keep = den > 1e-12
+            frac = frac[:, keep] / den[keep]
+            idx = idx[:, keep]
+            used = frac > 0.0
+            cs.append(idx[used])
+            xs.append(np.broadcast_to(part.theta[keep] + theta_o, frac.shape)[used])
+            ps.append(np.broadcast_to(part.phi[keep], frac.shape)[used])
+            ws.append((frac * part.weight[keep])[used])
+        else:
+            cs.append(cell_indices(part.theta_h, part.theta_d, part.phi_d))
+            xs.append(part.theta + theta_o)
+            ps.append(part.phi)
+            ws.append(part.weight)
         del part
     rule = SliceRule(np.concatenate(xs), np.concatenate(ps), np.concatenate(ws), None, None, None)
     cells = np.concatenate(cs)

@@ -229,17 +229,13 @@ def _fractional_indices(theta_h, theta_d, phi_d):
     return fth, ftd, fpd
 
 
-def lookup_angles(table: MerlTable, theta_h, theta_d, phi_d, interp="nearest"):
-    """rho for Rusinkiewicz angles: returns (values (3, n), valid (3, n))."""
-    if interp == "nearest":
-        idx = cell_indices(theta_h, theta_d, phi_d)
-        return table.rho[:, idx], table.valid[:, idx]
-    if interp != "trilinear":
-        raise ValueError(f"unknown interpolation {interp!r}")
-    fth, ftd, fpd = _fractional_indices(np.asarray(theta_h, float), np.asarray(theta_d, float),
-                                        np.asarray(phi_d, float))
-    out = np.zeros((3,) + fth.shape)
-    wsum = np.zeros((3,) + fth.shape)
+def trilinear_corners(theta_h, theta_d, phi_d):
+    """The 8 cells around each point and their trilinear weights: ((8, n) indices, (8, n) weights).
+
+    Along theta_h and theta_d the corners clamp at the table's edges; phi_d is periodic with
+    period pi through the reciprocity fold."""
+    fth, ftd, fpd = _fractional_indices(np.asarray(theta_h, float).ravel(), np.asarray(theta_d, float).ravel(),
+                                        np.asarray(phi_d, float).ravel())
     axes = []
     for f, n, periodic in ((fth, RES_TH, False), (ftd, RES_TD, False), (fpd, RES_PD, True)):
         i0 = np.floor(f)
@@ -247,23 +243,56 @@ def lookup_angles(table: MerlTable, theta_h, theta_d, phi_d, interp="nearest"):
         i0 = i0.astype(np.int64)
         i1 = i0 + 1
         if periodic:
-            # phi_d is periodic with period pi through the reciprocity fold.
             i0, i1 = i0 % n, i1 % n
         else:
             i0, i1 = np.clip(i0, 0, n - 1), np.clip(i1, 0, n - 1)
         axes.append(((i0, 1.0 - t), (i1, t)))
+    idx = np.empty((8, fth.size), np.int64)
+    w = np.empty((8, fth.size))
+    k = 0
     for a in axes[0]:
         for b in axes[1]:
             for c in axes[2]:
-                w = a[1] * b[1] * c[1]
-                idx = c[0] + RES_PD * (b[0] + RES_TD * a[0])
-                ok = table.valid[:, idx]
-                wv = np.where(ok, w, 0.0)
-                out += wv * table.rho[:, idx]
-                wsum += wv
+                idx[k] = c[0] + RES_PD * (b[0] + RES_TD * a[0])
+                w[k] = a[1] * b[1] * c[1]
+                k += 1
+    return idx, w
+
+
+_HORIZON = {}
+
+
+def horizon_mask() -> np.ndarray:
+    """(N_CELLS,) bool: cells whose centre has both directions above the horizon (the cells a
+    tabulated table holds; MERL's own files and the Neural-BRDF decodes have the same mask)."""
+    if "mask" not in _HORIZON:
+        from .geometry import directions_from_half_diff
+
+        wi, wo = directions_from_half_diff(*cell_centres())
+        _HORIZON["mask"] = ~((wi[..., 2] <= 0.0) | (wo[..., 2] <= 0.0)).reshape(N_CELLS)
+    return _HORIZON["mask"]
+
+
+def lookup_angles(table: MerlTable, theta_h, theta_d, phi_d, interp="nearest"):
+    """rho for Rusinkiewicz angles: returns (values (3, n), valid (3, n))."""
+    if interp == "nearest":
+        idx = cell_indices(theta_h, theta_d, phi_d)
+        return table.rho[:, idx], table.valid[:, idx]
+    if interp != "trilinear":
+        raise ValueError(f"unknown interpolation {interp!r}")
+    shape = np.shape(theta_h)
+    idx, w = trilinear_corners(theta_h, theta_d, phi_d)
+    out = np.zeros((3, idx.shape[1]))
+    wsum = np.zeros((3, idx.shape[1]))
+    for k in range(8):
+        ok = table.valid[:, idx[k]]
+        wv = np.where(ok, w[k], 0.0)
+        out += wv * table.rho[:, idx[k]]
+        wsum += wv
     valid = wsum > 1e-12
     # Renormalise over measured neighbours so a missing cell never pulls values down.
-    return np.where(valid, out / np.where(valid, wsum, 1.0), 0.0), valid
+    out = np.where(valid, out / np.where(valid, wsum, 1.0), 0.0)
+    return out.reshape((3,) + shape), valid.reshape((3,) + shape)
 
 
 def lookup(table: MerlTable, wi, wo, interp="nearest"):
@@ -279,7 +308,6 @@ def tabulate(brdf, *, path=None) -> MerlTable:
     theta_h, theta_d, phi_d = cell_centres()
     wi, wo = directions_from_half_diff(theta_h, theta_d, phi_d)
     rho = np.asarray(brdf(wi, wo), dtype=float).reshape(3, N_CELLS)
-    below = (wi[..., 2] <= 0.0) | (wo[..., 2] <= 0.0)
-    valid = np.broadcast_to(~below, (3, N_CELLS)).copy()
+    valid = np.broadcast_to(horizon_mask(), (3, N_CELLS)).copy()
     rho = np.where(valid, np.maximum(rho, 0.0), 0.0)
     return MerlTable(rho, valid, path)

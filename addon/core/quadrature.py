@@ -200,11 +200,14 @@ class RuleParams:
     # lines across the slice, whose quadrature is the error left; see slice_rule).
     grazing_rays: tuple = (2, 4)
     grazing_strip: tuple = (2, 2)
+    # How the operator reads the table at the rule's nodes: the nearest cell (MERL's own
+    # reader), or trilinear between the 8 cells around each node (integrate._build_view).
+    interp: str = "nearest"
 
     def key(self):
-        return (self.n_phi, self.n_gauss, self.fade_from, self.fade_to, self.n_panels, self.n_panels_phi,
-                self.n_gauss_far, self.exact, self.n_probe, self.grazing_rays,
-                self.grazing_strip)
+        key = (self.n_phi, self.n_gauss, self.fade_from, self.fade_to, self.n_panels, self.n_panels_phi,
+               self.n_gauss_far, self.exact, self.n_probe, self.grazing_rays, self.grazing_strip)
+        return key if self.interp == "nearest" else key + (self.interp,)  # nearest keys as before
 
 
 def _composite(lo, hi, panels, n_gauss):
