@@ -234,8 +234,7 @@ def _plot_all(profiles, fits, out_dir, workers):
 def _publish(out_dir, inputs, docs, fits, summary, profiles, workers):
     """Write every result into a staging folder inside ``out_dir``, then move each into place:
     an error or Ctrl-C before the moves leaves nothing (the staging folder is removed)."""
-    from .cli import write_json_atomic
-    from .core.atomic import temp_folder
+    from .core.atomic import temp_folder, write_json_atomic
     from .core.safeio import guard_output
 
     finals = list(docs) + ["fits.json", "summary.csv"]

@@ -6,7 +6,6 @@ Exit codes: 0 success, 2 bad input (one line on stderr naming the file and the f
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -65,15 +64,6 @@ def _elevation(text):
     return v
 
 
-def write_json_atomic(data, path):
-    """Write JSON atomically; ``allow_nan=False`` means no NaN can get in."""
-    from .core.atomic import atomic_path
-
-    with atomic_path(path, ".json") as tmp, open(tmp, "w") as fh:
-        json.dump(data, fh, allow_nan=False)
-        fh.write("\n")
-
-
 def _progress(label, always=False):
     """A progress bar on a terminal; with ``always``, plain lines at every tenth elsewhere."""
     if not sys.stderr.isatty():
@@ -108,6 +98,7 @@ def _single_materials(specs):
 
 
 def cmd_profiles(args):
+    from .core.atomic import write_json_atomic
     from .core.integrate import default_views
     from .core.nbrdf import read_table
     from .core.profiles import compute_profiles
@@ -133,6 +124,7 @@ def cmd_profiles(args):
 
 def cmd_fit(args):
     from .analyze import collect_inputs, input_names, load_profiles
+    from .core.atomic import write_json_atomic
     from .core.fits import fit_set
 
     _single_materials(args.files)
