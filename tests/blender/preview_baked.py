@@ -11,8 +11,10 @@ import math
 import os
 import sys
 
-argv = sys.argv[sys.argv.index("--") + 1:]
-ROOT, OUT = argv[0], argv[1]
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+from addon.script_args import script_args  # noqa: E402
+
+ROOT, OUT = script_args()[:2]
 sys.path.insert(0, ROOT)
 
 import bpy  # noqa: E402
