@@ -6,7 +6,6 @@ import csv
 import io
 import math
 import os
-import sys
 import time
 
 import numpy as np

@@ -144,13 +144,6 @@ def _build_chunks(theta_o, params, progress):
     return parts, offsets
 
 
-def build_operator(theta_o, params: RuleParams = RuleParams(), progress=None) -> SliceOperator:
-    """Build in memory (no cache). ``get_operator`` is the cached, lower-peak-memory path."""
-    theta_o = np.asarray(theta_o, dtype=float)
-    parts, offsets = _build_chunks(theta_o, params, progress)
-    return SliceOperator(theta_o, offsets, **{k: np.concatenate(v) for k, v in parts.items()})
-
-
 def _operator_key(theta_o, params):
     h = hashlib.sha256()
     h.update(repr((OPERATOR_VERSION, params.key())).encode())

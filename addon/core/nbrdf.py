@@ -273,11 +273,6 @@ def load_network(path, name: str | None = None) -> Network:
     return _network(path, name, groups[name])
 
 
-def load_set(path) -> list[Network]:
-    groups = _groups(path)
-    return [_network(path, n, groups[n]) for n in sorted(groups)]
-
-
 # --- evaluation --------------------------------------------------------------------------
 
 def _axis_centres():

@@ -17,7 +17,6 @@ import numpy as np
 
 SHADER_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "shaders")
 SHADERS = {"model": "brdf_moments_model", "tabulated": "brdf_moments_table"}
-TABLE_SIZE = (1800, 810)   # (width, height) of the table texture
 
 
 class OSLUnavailable(RuntimeError):

@@ -76,36 +76,6 @@ def truncated_params(mean, var, iters=40):
     return m, s
 
 
-def _z_moments(m, s):
-    """E[z], central c2, c3, c4 and raw E[z^3] of z = (x - m)/s, x ~ N(m, s^2) on [-pi/2, pi/2]."""
-    a, b = (-HALF_PI - m) / s, (HALF_PI - m) / s
-    z = truncnorm_mass(m, s)
-    pa = np.exp(-0.5 * a * a) / _SQRT_2PI
-    pb = np.exp(-0.5 * b * b) / _SQRT_2PI
-    m1 = (pa - pb) / z
-    m2 = 1.0 + (a * pa - b * pb) / z
-    m3 = 2.0 * m1 + (a * a * pa - b * b * pb) / z
-    m4 = 3.0 * m2 + (a ** 3 * pa - b ** 3 * pb) / z
-    c2 = np.maximum(m2 - m1 * m1, 1e-300)
-    c3 = m3 - 3.0 * m1 * m2 + 2.0 * m1 ** 3
-    c4 = m4 - 4.0 * m1 * m3 + 6.0 * m1 * m1 * m2 - 3.0 * m1 ** 4
-    return m1, c2, c3, c4, m3
-
-
-def truncnorm_moments(m, s):
-    """Mean and variance of N(m, s^2) truncated to [-pi/2, pi/2]."""
-    m = np.asarray(m, float)
-    s = np.asarray(s, float)
-    a, b = (-HALF_PI - m) / s, (HALF_PI - m) / s
-    z = truncnorm_mass(m, s)
-    pa = np.exp(-0.5 * a * a) / _SQRT_2PI
-    pb = np.exp(-0.5 * b * b) / _SQRT_2PI
-    r = (pa - pb) / z
-    mean = m + s * r
-    var = s * s * (1.0 + (a * pa - b * pb) / z - r * r)
-    return mean, np.maximum(var, 1e-300)
-
-
 # --- lobes per view -----------------------------------------------------------------------------
 
 @dataclass
@@ -401,16 +371,3 @@ class HalfVectorSampler:
         i = np.clip((np.sqrt(th / HALF_PI) * self.n).astype(np.int64), 0, self.n - 1)
         p_h = self.p[self._row(theta_o), i] / self.ring[i]
         return np.where(dot > 0, p_h / (4.0 * np.maximum(dot, 1e-300)), 0.0) * cp
-
-
-def make_brdf(source, profiles=None):
-    """A BRDF object from a MerlTable, a MomentParams, or an object that already is one."""
-    from ..merl import MerlTable
-
-    if isinstance(source, (ModelBRDF, TableBRDF)):
-        return source
-    if isinstance(source, MomentParams):
-        return ModelBRDF(source)
-    if isinstance(source, MerlTable):
-        return TableBRDF(source, profiles)
-    raise TypeError(f"cannot preview a {type(source).__name__}: give a MerlTable or MomentParams")
