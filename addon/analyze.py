@@ -10,15 +10,7 @@ import time
 
 import numpy as np
 
-
-def material_name(path) -> str:
-    from .core.nbrdf import parse_source
-
-    path, name = parse_source(os.fspath(path))
-    if name:  # FILE:NAME, a material of a Neural-BRDF weights set
-        return name
-    base = os.path.basename(os.fspath(path))
-    return base[: -len(".binary")] if base.endswith(".binary") else os.path.splitext(base)[0]
+from .core.names import distinct_name, material_name
 
 
 def _weights_specs(item, problems):
@@ -197,14 +189,6 @@ def write_text_atomic(text, path):
         fh.write(text)
 
 
-def safe_output_name(name: str) -> str:
-    """A material name as a file name that cannot leave the output folder, distinct for
-    distinct names (``names.distinct_name``: ``a b`` and ``a_b`` get different files)."""
-    from .core.names import distinct_name
-
-    return distinct_name(name)
-
-
 def _plot_group(args):
     from . import plots as P
 
@@ -282,7 +266,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, 
         profiles[name] = Profiles.from_json(pj, name=name)
         per_fit[name] = fit
         seconds.append(sec)
-        docs[os.path.join("materials", safe_output_name(name) + ".json")] = \
+        docs[os.path.join("materials", distinct_name(name) + ".json")] = \
             {"material": name, "source": os.path.abspath(path), "profiles": pj, "fit": fit}
     if not profiles:
         return problems

@@ -105,9 +105,9 @@ def _analyze(inputs, out, floor):
         rows = {r["material"]: r for r in csv.DictReader(fh)}
     nan = 0
     for name in rows:
-        from .analyze import safe_output_name
+        from .core.names import distinct_name
 
-        with open(os.path.join(out, "materials", safe_output_name(name) + ".json")) as fh:
+        with open(os.path.join(out, "materials", distinct_name(name) + ".json")) as fh:
             prof = json.load(fh)["profiles"]
         upto = [i for i, t in enumerate(prof["theta_o"]) if t <= math.radians(85.0)]
         nan += any(prof["avg"][k][i] is None for k in ("alpha", "mu_theta", "sigma_tt") for i in upto)

@@ -10,11 +10,13 @@ import math
 import bpy
 import numpy as np
 
+from .core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
 from .core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE
 from .core.moments import CHANNELS, PROFILE_KEYS
 
 MU_MIN, MU_MAX = -2.0, 0.0
-SIGMA2_MIN, SIGMA2_MAX = 1e-8, math.pi ** 2 / 12
+# The slider reaches below the model's floor (MIN_SIGMA2): the edit clamps it and says so.
+SIGMA2_MIN, SIGMA2_MAX = 1e-8, LAMBERT_VARIANCE
 
 
 def clamp_mu(v):
@@ -197,7 +199,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
             return params
         s2 = float(correlation_curve(self.mu_slope, self.correlation_a)) if self.lock else self.sigma2
         return params.edited(self.strength, tuple(self.colour), self.grazing_boost, self.mu_slope,
-                             min(max(s2, 1e-7), math.pi ** 2 / 12))
+                             min(max(s2, MIN_SIGMA2), LAMBERT_VARIANCE))
 
     def reset_sliders(self):
         self.strength, self.colour, self.grazing_boost = 1.0, (1.0, 1.0, 1.0), 1.0

@@ -59,3 +59,15 @@ def test_only_the_entry_point_imports_the_cli():
                  if os.path.relpath(p, ROOT) not in (os.path.join("addon", "__main__.py"), os.path.join("addon", "cli.py"))
                  for mod, line in _imported_modules(p) if mod == "addon.cli"]
     assert offenders == []
+
+
+def test_the_shaders_clamp_the_variance_like_the_engine():
+    """OSL cannot import Python: its variance clamp repeats core.fits' constants, checked here."""
+    import re
+
+    from addon.core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
+
+    for name in ("brdf_moments_model.osl", "brdf_moments_table.osl"):
+        text = open(os.path.join(ROOT, "addon", "shaders", name), encoding="utf-8").read()
+        (lo, hi), = re.findall(r"clamp\(Sigma2, ([0-9.e+-]+), ([0-9.e+-]+)\)", text)
+        assert float(lo) == MIN_SIGMA2 and abs(float(hi) - LAMBERT_VARIANCE) < 1e-15, name

@@ -56,8 +56,9 @@ class MerlTable:
             return self.label
         if not self.path:
             return "material"
-        base = os.path.basename(self.path)
-        return base[: -len(".binary")] if base.endswith(".binary") else os.path.splitext(base)[0]
+        from .names import file_stem
+
+        return file_stem(self.path)
 
     def copy(self) -> "MerlTable":
         return MerlTable(self.rho.copy(), self.valid.copy(), self.path, self.label)

@@ -15,6 +15,8 @@ import os
 import bpy
 import numpy as np
 
+from ..core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
+
 SHADER_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "shaders")
 SHADERS = {"model": "brdf_moments_model", "tabulated": "brdf_moments_table"}
 
@@ -115,7 +117,7 @@ def set_table_inputs(node, texture_path, mu_slope, sigma2, kd, samples=16, envir
         ins["Filter"].default_value = float(filter_scale)
     ins["Table"].default_value = texture_path
     ins["MuSlope"].default_value = float(mu_slope)
-    ins["Sigma2"].default_value = float(min(max(sigma2, 1e-7), math.pi ** 2 / 12))
+    ins["Sigma2"].default_value = float(min(max(sigma2, MIN_SIGMA2), LAMBERT_VARIANCE))
     ins["CosineShare"].default_value = float(cosine_share)
     ins["Albedo"].default_value = (*(math.pi * float(v) for v in kd), 1.0)
     ins["Samples"].default_value = int(samples)

@@ -20,9 +20,9 @@ import numpy as np
 from scipy.special import ndtr, ndtri
 
 from .. import truncated as _truncated
+from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, energy_curve
+from ..geometry import HALF_PI
 
-HALF_PI = 0.5 * math.pi
-LAMBERT_VARIANCE = math.pi ** 2 / 12
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 # Widest Gaussian used: within 0.3 % of uniform on the interval, and float32 (the OSL
 # shader) still resolves its truncated variance. The Lambertian limit is reached here.
@@ -111,18 +111,6 @@ class LobeTable:
 
 # --- BRDFs ----------------------------------------------------------------------------------------
 
-def _hermite_energy(t, alpha_b, theta0, theta1, alpha1, m1):
-    """Sec. 3.4 energy curve, per channel: (n, 3). Same definition as fits.energy_curve."""
-    t = np.asarray(t, float)[:, None]
-    span = max(theta1 - theta0, 1e-9)
-    s = np.clip((t - theta0) / span, 0.0, 1.0)
-    after = t > theta1
-    h00 = np.where(after, 0.0, 2 * s ** 3 - 3 * s ** 2 + 1)
-    h01 = np.where(after, 1.0, -2 * s ** 3 + 3 * s ** 2)
-    h11 = np.where(after, t - theta1, (s ** 3 - s ** 2) * span)
-    return h00 * np.asarray(alpha_b) + h01 * np.asarray(alpha1) + h11 * np.asarray(m1)
-
-
 def _rgb(v):
     return tuple(float(x) for x in np.broadcast_to(np.asarray(v, float), (3,)))
 
@@ -166,7 +154,7 @@ class MomentParams:
         pick = [ch.get(c, {}) for c in "rgb"]
         return cls(tuple(p.get("alpha_b", 0.0) for p in pick), tuple(p.get("alpha1", 0.0) for p in pick),
                    tuple(p.get("m1", 0.0) for p in pick), float(fit["theta0"]), float(fit["theta1"]),
-                   float(fit["mu_slope"]), float(np.clip(fit["sigma2"], 1e-7, LAMBERT_VARIANCE)), kd)
+                   float(fit["mu_slope"]), float(np.clip(fit["sigma2"], MIN_SIGMA2, LAMBERT_VARIANCE)), kd)
 
     def edited(self, strength=1.0, colour=(1.0, 1.0, 1.0), grazing_boost=1.0, mu_slope=None,
                sigma2=None) -> "MomentParams":
@@ -182,7 +170,7 @@ class MomentParams:
 
     def energy(self, theta_o):
         """alpha per channel at the views, (n, 3); never negative."""
-        a = _hermite_energy(theta_o, self.alpha_b, self.theta0, self.theta1, self.alpha1, self.m1)
+        a = energy_curve(theta_o, self.alpha_b, self.theta0, self.theta1, self.alpha1, self.m1)
         return np.maximum(a, 0.0)
 
     def content_key(self) -> str:
