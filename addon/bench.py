@@ -190,7 +190,7 @@ def bench_tables(quick, names=None):
         e = np.max([_errors({k: g[k][:, i] for k in ref_at(i)}, ref_at(i)) for i in range(4)], axis=0)
         rows.append((name, "uniform grid 256²", t, e))
     out = ["### Tabulated samples against the converged reference", "",
-           f"Specular part (kd split on; off for the Lambertian), all four channel sets (r, g, b, avg); errors are the worst over",
+           "Specular part (kd split on; off for the Lambertian), all four channel sets (r, g, b, avg); errors are the worst over",
            f"channels at θo = {', '.join(f'{v:g}°' for v in REF_VIEWS_DEG)} against the adaptive reference",
            "(`integrate.reference_sums`). Time is for a whole material: 90 views, 15 moments, 4 channel",
            "sets (Monte Carlo and grid timed on the reference views and scaled to 90).", "",
@@ -277,7 +277,7 @@ def bench_fits(quick):
         times.append(t)
     n = 20 if quick else 100
     out = ["### Fits and whole-set analysis", "",
-           f"`fit_material` (energy spline with knot search, mean slope, variance, per-channel colour) on",
+           "`fit_material` (energy spline with knot search, mean slope, variance, per-channel colour) on",
            f"{len(names)} samples: median {np.median(times) * 1e3:.0f} ms per material "
            f"(range {min(times) * 1e3:.0f}–{max(times) * 1e3:.0f} ms).", ""]
     folder = tempfile.mkdtemp(prefix="brdf-bench-set-")
@@ -414,7 +414,7 @@ def bench_edit_legacy(quick):
                         row(name, mode, (f["mu_slope"], f["sigma2"]), "", res, t_edit, n, prof, fit, tg))
     n_ok = lambda rows: sum(r.endswith("| OK |") for r in rows)  # noqa: E731
     return (["### Editing: re-synthesis time and the moments reached", "",
-             f"One synthesis = one full 90x90x180 table, both orientations combined (the per-cell pair",
+             "One synthesis = one full 90x90x180 table, both orientations combined (the per-cell pair",
              f"geometry is cached once per process: {t_geo:.1f} s). A full edit adds correction rounds",
              "(tabulate, re-measure, step; 10, and up to 6 more while they close in) for the reciprocal",
              "combination and the clipping.",

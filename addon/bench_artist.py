@@ -123,7 +123,7 @@ def bench_artist(quick=False):
                      + ", ".join(f"{v:.3f}" for v in pfit.base_color)
                      + f"; stated BRDF error {pfit.error:.1%}, albedo within {pfit.albedo_error:.1%}")
         # 5. slider to preview: one synthesis round, the engine BRDF, the quarter-size bake
-        for k, s2 in enumerate((1.25, 1.5, 0.8)):
+        for s2 in (1.25, 1.5, 0.8):
             targets = EditTargets(sigma2=min(fit["sigma2"] * s2, math.pi ** 2 / 12))
             t0 = time.perf_counter()
             new = fast_edit(table, targets, prof, fit)

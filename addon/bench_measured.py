@@ -152,13 +152,13 @@ def bench_measured(quick=False):
              "| floor | wall time (process) | CPU time (all processes) | analyze's own line "
              "| stderr lines (not progress) | NaN profiles ≤ 85° |",
              "|---|---|---|---|---|---|"]
-    for floor, ((wall, cpu), noise, fits, rows, nan, last) in runs.items():
+    for floor, ((wall, cpu), noise, _fits, _rows, nan, last) in runs.items():
         lines.append(f"| {floor} | {wall:.1f} s | {cpu:.1f} s | {last.split(';')[0]} | {len(noise)} | {nan} |")
     wall_d, cpu_d = np.array(dec_times).T
     lines += ["", f"Decoding one network into a MERL table (numpy, float32, chunks of {nbrdf.CHUNK} cells, one "
               f"process): median {1e3 * float(np.median(wall_d)):.0f} ms wall, {1e3 * float(np.median(cpu_d)):.0f} ms "
               f"CPU; {wall_d.sum():.1f} s wall for all {len(names)}.", ""]
-    for floor, (wall, noise, fits, rows, nan, last) in runs.items():
+    for floor, (_wall, noise, _fits, _rows, _nan, _last) in runs.items():
         for ln in noise[:5]:
             lines.append(f"- stderr ({floor}): `{ln.strip()[:150]}`")
     lines += ["", "### Measured materials: fits, floors and the paper's model", "",
@@ -210,7 +210,7 @@ def bench_measured(quick=False):
               f"{sum(r > 10 for r in kd_ratio)} of {len(names)} materials more than 10× higher. The cell that "
               f"sets the paper's minimum has a direction {'beyond 80°'} from the normal for "
               f"{sum(a > 80 for a in min_at)} of {len(names)} materials, beyond 85° for {sum(a > 85 for a in min_at)}.",
-              f"Correlation fits (σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12): "
+              "Correlation fits (σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12): "
               + ", ".join(f"{fl} a = {runs[fl][2]['correlation']['a']:.3f} (RMSE {runs[fl][2]['correlation']['rmse']:.3g})"
                           for fl in runs if runs[fl][2].get("correlation", {}).get("a") is not None)]
     return lines

@@ -332,8 +332,8 @@ def build_parser():
 
 
 def main(argv=None):
-    from .core.merl import MerlError, display_path
-    from .core.safeio import run_scope
+    from .core.merl import MerlError
+    from .core.safeio import display_path, run_scope
 
     parser = build_parser()
     args = parser.parse_args(argv)

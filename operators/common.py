@@ -1,7 +1,5 @@
 """What the operators share: finding the material they act on, and the analysis job."""
 
-import os
-
 import bpy
 
 

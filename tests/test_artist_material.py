@@ -70,8 +70,8 @@ def _tree(mat):
     nodes = sorted((n.name, n.bl_idname, tuple(
         tuple(s.default_value) if hasattr(s.default_value, "__len__") else s.default_value
         for s in n.inputs if hasattr(s, "default_value"))) for n in nt.nodes)
-    links = sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
-                   for l in nt.links)
+    links = sorted((link.from_node.name, link.from_socket.identifier, link.to_node.name, link.to_socket.identifier)
+                   for link in nt.links)
     return nodes, links
 
 

@@ -110,7 +110,7 @@ def test_identity_and_energy_only_are_exact(glossy):
     np.testing.assert_array_equal(res.table.rho, table.rho)
     assert res.fidelity.worst("variance_worst") < 1e-4  # the stick reads the identity as exact
     res = edit(table, EditTargets(strength=0.8), prof, fit)
-    for i, ch in enumerate("rgb"):
+    for ch in "rgb":
         np.testing.assert_allclose(res.profiles[ch]["alpha"], 0.8 * prof[ch]["alpha"], rtol=1e-5)
 
 

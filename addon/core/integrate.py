@@ -292,7 +292,7 @@ def sweep_operator_cache(parent, keep=()) -> list:
         current.append((float("inf") if name in keep else used, name, size))
     current.sort(reverse=True)
     total, count = 0, 0
-    for used, name, size in current:
+    for _used, name, size in current:
         total += size
         count += 1
         if (count > OPERATOR_CACHE_MAX_ENTRIES or total > OPERATOR_CACHE_MAX_BYTES) and name not in keep:

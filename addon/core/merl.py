@@ -14,7 +14,7 @@ import numpy as np
 
 from .atomic import atomic_path
 from .geometry import HALF_PI, half_diff_from_directions
-from .safeio import UnsafePath, display_path, guard_output, open_input
+from .safeio import UnsafePath, guard_output, open_input
 
 RES_TH, RES_TD, RES_PD = 90, 90, 180
 N_CELLS = RES_TH * RES_TD * RES_PD

@@ -46,7 +46,7 @@ class WeightsError(MerlError):
 
 
 def _names(names) -> str:
-    from .merl import display_path
+    from .safeio import display_path
 
     return ", ".join(display_path(n) for n in names)  # control characters escaped: one line
 
