@@ -8,6 +8,8 @@ import shutil
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.blender  # the bpy module
+
 
 @pytest.fixture
 def artist(fresh, tmp_path, monkeypatch):

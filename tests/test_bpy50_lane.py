@@ -9,6 +9,8 @@ import sys
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.blender  # lane 3: the bpy 5.0 module
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PY50 = os.path.join(ROOT, ".venv-bpy50", "bin", "python")
 # The tests that drive Blender (the engine's own tests do not depend on the bpy version).

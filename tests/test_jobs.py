@@ -7,6 +7,8 @@ import time
 
 import pytest
 
+pytestmark = pytest.mark.blender  # the job runner in the bpy module
+
 
 class _WM:
     def __init__(self):

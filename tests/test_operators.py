@@ -13,6 +13,8 @@ from addon.core.fits import fit_material
 from addon.core.merl import read_merl
 from addon.core.profiles import compute_profiles
 
+pytestmark = pytest.mark.blender  # the operators in the bpy module
+
 
 def _sha(path):
     return hashlib.sha256(open(path, "rb").read()).hexdigest()

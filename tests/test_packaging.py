@@ -7,6 +7,10 @@ import sys
 import tomllib
 import zipfile
 
+import pytest
+
+pytestmark = pytest.mark.blender  # Blender's extension builder (in the bpy wheel)
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 

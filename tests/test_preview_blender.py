@@ -12,6 +12,8 @@ import sys
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.blender  # Cycles through the bpy module
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 A, B = 1.0, 0.5            # sky L = A + B z: a Lambertian of albedo 0.8 shows 0.8 (A + 2 B n_z / 3)
 

@@ -196,6 +196,7 @@ def test_moment_model_uses_the_solid_angle_measure():
     assert rgb[inner, 0].mean() == pytest.approx(0.8, rel=8e-3)
 
 
+@pytest.mark.slow
 def test_bake_agrees_with_the_reference_on_a_glossy_table(sample_table):
     """Independent estimators of the same integral (QMC + MIS + prefilter against plain MC).
 

@@ -51,6 +51,7 @@ def test_inside_blender_is_told_from_bpy(monkeypatch):
     assert sa.script_args(["x.py", "--out", "o"]) == ["--out", "o"]
 
 
+@pytest.mark.blender
 @pytest.mark.parametrize("tail", [[], ["--", "--sample", "gold", "--size", "64"]], ids=["no-dashes", "dashes"])
 def test_demo_parses_its_arguments_in_a_real_blender(tmp_path, tail):
     if BLENDER is None:
