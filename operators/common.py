@@ -53,7 +53,7 @@ def analysis_work(path, floor="min"):
 
 def store_analysis(mat, path, result) -> str:
     """Write an analysis into the material (and its plot); returns the line to report."""
-    from ..addon.state import plot_image
+    from ..addon.blender.state import plot_image
 
     name, prof, fit = result
     state = mat.brdf_moments

@@ -17,7 +17,7 @@ def artist(fresh, tmp_path, monkeypatch):
     analysed from ggx_glossy; a small Cycles render of the sphere under a constant sky."""
     import samples
     from addon.core.render import sphere_layout
-    from addon.preview import scene as sc, write_environment
+    from addon.blender.preview import scene as sc, write_environment
 
     bpy = fresh
     src = tmp_path / "glossy.binary"
@@ -53,7 +53,7 @@ def artist(fresh, tmp_path, monkeypatch):
 
 
 def _render(bpy, scene, path):
-    from addon.preview import quiet_stdout
+    from addon.blender.preview import quiet_stdout
 
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.filepath = str(path)
@@ -160,7 +160,7 @@ def test_the_edit_and_the_plot_survive_save_and_reopen(artist):
 
 
 def test_osl_edit_keeps_its_table_texture_packed_in_the_blend(artist):
-    from addon.preview import osl_available
+    from addon.blender.preview import osl_available
 
     bpy, mat, scene, layout, tmp = artist
     if not osl_available()[0]:
@@ -198,10 +198,10 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     from addon.core.edit import EditTargets
     from addon.core.merl import read_merl
     from addon.core.render import TableBRDF, bake_sphere, sphere_layout
-    from addon.preview import load_environment, resolve_environment
+    from addon.blender.preview import load_environment, resolve_environment
 
     bpy, mat, scene, layout, tmp = artist
-    live = sys.modules["bl_ext.bmtest.brdf_moments.addon.live"]
+    live = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.live"]
     state = mat.brdf_moments
     assert bpy.ops.brdf_moments.build_preview(material="Artist", path="BAKED", size=48) == {"FINISHED"}
     before = live.read_preview_image(mat)
@@ -243,7 +243,7 @@ def test_the_panel_shows_four_significant_digits_and_the_approximation(artist):
     from tests.test_operators import _Recorder
 
     bpy, mat, *_ = artist
-    panel = import_module("bl_ext.bmtest.brdf_moments.addon.panel")
+    panel = import_module("bl_ext.bmtest.brdf_moments.addon.blender.panel")
     state = mat.brdf_moments
     state.artist_shader, state.strength = "PRINCIPLED", 0.7
     assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
@@ -261,7 +261,7 @@ def test_the_panel_shows_four_significant_digits_and_the_approximation(artist):
 
 
 def test_osl_table_texture_next_to_the_blend_moves_with_it(artist):
-    from addon.preview import osl_available
+    from addon.blender.preview import osl_available
 
     bpy, mat, scene, layout, tmp = artist
     if not osl_available()[0]:

@@ -42,7 +42,7 @@ def test_the_blender_tests_pass_under_bpy_50_with_no_deprecated_call(py50, tmp_p
 
 
 def test_a_render_is_the_same_under_45_and_50(py50, tmp_path):
-    """The sampling pattern is set explicitly (addon.compat.fix_sampling_pattern): with
+    """The sampling pattern is set explicitly (addon.blender.compat.fix_sampling_pattern): with
     Cycles' default the two versions' 4-sample OSL renders differ by 340 % RMSE (measured),
     with it they agree to float rounding."""
     import OpenEXR

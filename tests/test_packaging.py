@@ -85,8 +85,8 @@ def test_only_the_extension_ships(tmp_path):
     shaders = {os.path.relpath(os.path.join(d, f), ROOT).replace(os.sep, "/")
                for d, _, files in os.walk(os.path.join(ROOT, "addon", "shaders")) for f in files}
     assert set(paths) - code == shaders
-    for headless in ("addon/cli.py", "addon/analyze.py", "addon/__main__.py", "addon/render_command.py",
-                     "addon/bench.py", "addon/bench_preview.py", "addon/script_args.py", "samples/demo.py"):
+    for headless in ("addon/tools/cli.py", "addon/tools/analyze.py", "addon/__main__.py", "addon/tools/render_command.py",
+                     "addon/tools/bench.py", "addon/tools/bench_preview.py", "addon/script_args.py", "samples/demo.py"):
         assert headless not in paths
 
 

@@ -35,7 +35,7 @@ ticks = []  # main-loop timer ticks (time.monotonic)
 
 
 def jobs():
-    return sys.modules["brdf_moments.addon.jobs"]
+    return sys.modules["brdf_moments.addon.blender.jobs"]
 
 
 def log(*args):

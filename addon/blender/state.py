@@ -10,9 +10,9 @@ import math
 import bpy
 import numpy as np
 
-from .core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
-from .core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE
-from .core.moments import CHANNELS, PROFILE_KEYS
+from ..core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
+from ..core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE
+from ..core.moments import CHANNELS, PROFILE_KEYS
 
 MU_MIN, MU_MAX = -2.0, 0.0
 # The slider reaches below the model's floor (MIN_SIGMA2): the edit clamps it and says so.
@@ -34,7 +34,7 @@ def pack_profiles(prof) -> str:
 
 
 def unpack_profiles(text: str):
-    from .core.profiles import Profiles
+    from ..core.profiles import Profiles
 
     # Stored in the .blend, so it may be damaged or edited: checked before anything uses it.
     try:
@@ -163,7 +163,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         """The Principled BSDF fitted to the last edited table, or None."""
         import json
 
-        from .core.principled import PrincipledFit
+        from ..core.principled import PrincipledFit
 
         if not self.principled_data:
             return None
@@ -191,8 +191,8 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def model_params(self, edited=False):
         """The moment model (paper Eq. 7) of the fits, or of the fits moved by the sliders."""
-        from .core.fits import correlation_curve
-        from .core.render import MomentParams
+        from ..core.fits import correlation_curve
+        from ..core.render import MomentParams
 
         params = MomentParams.from_fit(self.fit(), tuple(self.kd))
         if not edited:
@@ -209,7 +209,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def slider_targets(self):
         """The sliders as engine targets; a slider still at its fitted value stays exact."""
-        from .core.edit import EditTargets
+        from ..core.edit import EditTargets
 
         at_fit_mu = abs(self.mu_slope - clamp_mu(self.fit_mu_slope)) < 1e-6
         at_fit_s2 = abs(self.sigma2 - clamp_sigma2(self.fit_sigma2)) <= 1e-7 * max(self.fit_sigma2, 1e-6)

@@ -32,7 +32,7 @@ def preview_image_name(mat):
 
 def fast_edit(table, targets, prof, fit):
     """The edit's synthesis, not re-measured: what a slider drag can afford."""
-    from .core.edit import edit
+    from ..core.edit import edit
 
     return edit(table, targets, prof, fit, remeasure=False).table
 
@@ -90,7 +90,7 @@ def read_preview_image(mat):
 
 def replace_sphere(mat, k, rgb, cov, label):
     """Sphere ``k`` of the preview image replaced by a (D, D) bake; the other sphere is kept."""
-    from .core.render import sphere_layout
+    from ..core.render import sphere_layout
 
     rgba = read_preview_image(mat)
     if rgba is None:
@@ -112,7 +112,7 @@ _TABLES = {}      # (path, mtime, size) -> MerlTable: the source stays in memory
 
 
 def _table(path):
-    from .core.nbrdf import read_table, source_file
+    from ..core.nbrdf import read_table, source_file
 
     st = os.stat(source_file(path))  # a MERL file, or the FILE of FILE:NAME (a network)
     key = (path, st.st_mtime_ns, st.st_size)
@@ -124,8 +124,8 @@ def _table(path):
 
 def _job(mat):
     """What the worker needs, read on the main thread; None when there is no live preview."""
-    from .core.nbrdf import source_exists
-    from .core.render import sphere_layout
+    from ..core.nbrdf import source_exists
+    from ..core.render import sphere_layout
     from .preview import load_environment, resolve_environment
 
     state = mat.brdf_moments
@@ -141,7 +141,7 @@ def _job(mat):
 
 
 def _work(job, stale=lambda: False, post=lambda stage, rgb, cov: None):
-    from .core.render import TableBRDF, bake_sphere
+    from ..core.render import TableBRDF, bake_sphere
 
     table = _table(job["source"])
     new = fast_edit(table, job["targets"], job["prof"], job["fit"])

@@ -27,19 +27,19 @@ def bench_artist(quick=False):
     import samples
 
     from .bench_preview import _environment, _read_exr, ground_truth
-    from .core.fits import fit_material
-    from .core.merl import read_merl
-    from .core.principled import fit_principled
-    from .core.profiles import compute_profiles
-    from .core.render import MomentParams, TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
-    from .live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit, upsample
-    from .wheel import import_bpy
+    from ..core.fits import fit_material
+    from ..core.merl import read_merl
+    from ..core.principled import fit_principled
+    from ..core.profiles import compute_profiles
+    from ..core.render import MomentParams, TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
+    from ..blender.live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit, upsample
+    from ..wheel import import_bpy
 
     bpy = import_bpy()
-    from . import material as artist
-    from .core.edit import EditTargets
-    from .preview import build_preview, render_still
-    from .preview import scene as sc
+    from ..blender import material as artist
+    from ..core.edit import EditTargets
+    from ..blender.preview import build_preview, render_still
+    from ..blender.preview import scene as sc
 
     env, env_path = _environment(bpy)
     layout = sphere_layout(SIZE, SIZE, 1)
@@ -150,7 +150,7 @@ def bench_artist(quick=False):
 
 
 def _tmp_dir():
-    from .core.integrate import default_cache_dir
+    from ..core.integrate import default_cache_dir
 
     path = os.path.join(default_cache_dir(), "preview")
     os.makedirs(path, exist_ok=True)

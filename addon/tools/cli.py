@@ -46,9 +46,9 @@ def _bounded(high):
 
 def _guard(out, *inputs):
     """Refuse a bad destination before any work (atomic_path checks again when writing)."""
-    from .core.safeio import guard_output
+    from ..core.safeio import guard_output
 
-    from .core.nbrdf import parse_source
+    from ..core.nbrdf import parse_source
 
     # FILE:NAME (a material of a weights set) reads FILE: that is the input to protect.
     return guard_output(out, [parse_source(p)[0] for p in inputs if p])
@@ -89,7 +89,7 @@ def _progress(label, always=False):
 
 def _single_materials(specs):
     """A weights set named with no material is an error for commands that take materials one by one."""
-    from .core.nbrdf import load_network, is_weights_source, parse_source
+    from ..core.nbrdf import load_network, is_weights_source, parse_source
 
     for spec in specs:
         path, name = parse_source(spec)
@@ -98,10 +98,10 @@ def _single_materials(specs):
 
 
 def cmd_profiles(args):
-    from .core.atomic import write_json_atomic
-    from .core.integrate import default_views
-    from .core.nbrdf import read_table
-    from .core.profiles import compute_profiles
+    from ..core.atomic import write_json_atomic
+    from ..core.integrate import default_views
+    from ..core.nbrdf import read_table
+    from ..core.profiles import compute_profiles
 
     _guard(args.out, args.file)
     if args.plot:
@@ -124,8 +124,8 @@ def cmd_profiles(args):
 
 def cmd_fit(args):
     from .analyze import collect_inputs, input_names, load_profiles
-    from .core.atomic import write_json_atomic
-    from .core.fits import fit_set
+    from ..core.atomic import write_json_atomic
+    from ..core.fits import fit_set
 
     _single_materials(args.files)
     paths, problems = collect_inputs(args.files)
@@ -183,9 +183,9 @@ def _finite(text):
 
 
 def cmd_edit(args):
-    from .core.edit import EditTargets, edit
-    from .core.merl import write_merl
-    from .core.nbrdf import parse_source, read_table
+    from ..core.edit import EditTargets, edit
+    from ..core.merl import write_merl
+    from ..core.nbrdf import parse_source, read_table
 
     _guard(args.out, args.file)
     table = read_table(args.file)
@@ -200,7 +200,7 @@ def cmd_edit(args):
 
     prof = None
     if args.floor != "min":
-        from .core.profiles import compute_profiles
+        from ..core.profiles import compute_profiles
 
         prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd
     try:
@@ -256,7 +256,7 @@ def _floor_option(parser):
 
 
 def build_parser():
-    from .core import limits as L
+    from ..core import limits as L
 
     p = _Parser(prog="python -m addon",
                                 description="BRDF Moments: moment profiles of measured (MERL) BRDFs.")
@@ -332,8 +332,8 @@ def build_parser():
 
 
 def main(argv=None):
-    from .core.merl import MerlError
-    from .core.safeio import display_path, run_scope
+    from ..core.merl import MerlError
+    from ..core.safeio import display_path, run_scope
 
     parser = build_parser()
     args = parser.parse_args(argv)

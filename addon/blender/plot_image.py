@@ -86,7 +86,7 @@ def energy_spline(theta, fit, channel_fit=None):
     keys = ("alpha_b", "alpha1", "m1")
     if any(f.get(k) is None for k in keys) or fit.get("theta0") is None or fit.get("theta1") is None:
         return np.full_like(theta, np.nan)
-    from .core.fits import energy_curve
+    from ..core.fits import energy_curve
 
     ab, a1, m1 = (float(f[k]) for k in keys)
     return energy_curve(theta, ab, float(fit["theta0"]), float(fit["theta1"]), a1, m1)

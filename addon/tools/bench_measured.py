@@ -30,14 +30,14 @@ import time
 
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 BACKSCATTER_LIMIT = 1.1
 TWO_SCALE_LIMIT = 4.0
 GRAZING_PEAK_DEG = 80.0
 
 
 def backscatter_ratio(table) -> float:
-    from .core.merl import lookup
+    from ..core.merl import lookup
 
     wo = np.array([[math.sin(math.pi / 4), 0.0, math.cos(math.pi / 4)]])
     back, _ = lookup(table, wo, wo)
@@ -47,7 +47,7 @@ def backscatter_ratio(table) -> float:
 
 def in_plane_lobe(table, kd, view_deg=30.0):
     """(peak angle in degrees, width at half, width at a tenth) of the in-plane specular part."""
-    from .core.merl import lookup
+    from ..core.merl import lookup
 
     to = math.radians(view_deg)
     ang = np.radians(np.linspace(-89.0, 89.0, 1781))
@@ -75,8 +75,8 @@ def in_plane_lobe(table, kd, view_deg=30.0):
 def minimum_cell_angle(table) -> float:
     """Polar angle (degrees) of the lower direction of the cell that sets the paper's floor
     (the minimum over the 45 deg slice, channel by channel; the largest of the three)."""
-    from .core.integrate import get_operator
-    from .core.profiles import DIFFUSE_VIEW, _slice_lower_cosine
+    from ..core.integrate import get_operator
+    from ..core.profiles import DIFFUSE_VIEW, _slice_lower_cosine
 
     cells = np.asarray(get_operator(np.array([DIFFUSE_VIEW]), memo=False).view(0)[0])
     cosine = _slice_lower_cosine(cells)
@@ -105,7 +105,7 @@ def _analyze(inputs, out, floor):
         rows = {r["material"]: r for r in csv.DictReader(fh)}
     nan = 0
     for name in rows:
-        from .core.names import distinct_name
+        from ..core.names import distinct_name
 
         with open(os.path.join(out, "materials", distinct_name(name) + ".json")) as fh:
             prof = json.load(fh)["profiles"]
@@ -116,9 +116,9 @@ def _analyze(inputs, out, floor):
 
 def bench_measured(quick=False):
     import samples
-    from .core import nbrdf
-    from .core.integrate import default_views, get_operator
-    from .core.profiles import ROBUST_MAX_ANGLE, ROBUST_PERCENTILE, diffuse_floor
+    from ..core import nbrdf
+    from ..core.integrate import default_views, get_operator
+    from ..core.profiles import ROBUST_MAX_ANGLE, ROBUST_PERCENTILE, diffuse_floor
 
     get_operator(default_views())  # the slice operator is cached per machine; not what is timed
     sets = [os.path.join(samples.MEASURED_DIR, f) for f in samples.MEASURED_SETS.values()]
@@ -165,7 +165,7 @@ def bench_measured(quick=False):
               f"kd: the average channel's floor, `min` the paper's minimum over the 45° slice, `robust` the "
               f"{100 * ROBUST_PERCENTILE:.0f}th area percentile of the slice's cells within "
               f"{math.degrees(ROBUST_MAX_ANGLE):.0f}° of the normal. Fits (μ̃, σ̃², α̃b, energy RMSE) per floor. "
-              f"Diagnostics (module docstring of addon/bench_measured.py): back-scatter ratio (> {BACKSCATTER_LIMIT}), "
+              f"Diagnostics (module docstring of addon/tools/bench_measured.py): back-scatter ratio (> {BACKSCATTER_LIMIT}), "
               f"in-plane peak (grazing if beyond ±{GRAZING_PEAK_DEG:.0f}°), width ratio at 1/10 and 1/2 of the "
               f"peak (> {TWO_SCALE_LIMIT:g}).", "",
               "| material | kd min | paper min at | kd robust | μ̃ min | σ̃² min | α̃b min | μ̃ robust | σ̃² robust | α̃b robust "
