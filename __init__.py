@@ -1,6 +1,6 @@
 """BRDF Moments: a Blender extension (4.2+) that also loads as a legacy add-on (3.4-4.1).
 
-Registration lives in ``addon.registration``; the engine (``addon.core``) never imports bpy.
+Registration lives in ``addon.blender.registration``; the engine (``addon.core``) never imports bpy.
 """
 
 bl_info = {
@@ -15,12 +15,12 @@ bl_info = {
 
 
 def register():
-    from .addon import registration
+    from .addon.blender import registration
 
     registration.register()
 
 
 def unregister():
-    from .addon import registration
+    from .addon.blender import registration
 
     registration.unregister()

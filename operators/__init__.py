@@ -1,1 +1,1 @@
-"""Operators, one per file; ``addon.registration`` registers them."""
+"""Operators, one per file; ``addon.blender.registration`` registers them."""

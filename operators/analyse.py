@@ -2,7 +2,7 @@
 
 import bpy
 
-from ..addon.jobs import BackgroundJob
+from ..addon.blender.jobs import BackgroundJob
 from .common import analysis_work, store_analysis, target_material
 
 

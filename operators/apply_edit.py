@@ -7,14 +7,14 @@ import os
 import bpy
 import numpy as np
 
-from ..addon import material as artist
-from ..addon.jobs import BackgroundJob
+from ..addon.blender import material as artist
+from ..addon.blender.jobs import BackgroundJob
 from .common import analysed_material
 
 
 def resolve_artist_shader(context, choice):
     """'principled', 'osl' or None for the artist's material, from the panel's choice."""
-    from ..addon.preview.osl import osl_available
+    from ..addon.blender.preview.osl import osl_available
 
     if choice == "NONE":
         return None
@@ -97,7 +97,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
 
                 principled = fit_principled(res.table)
             elif shader == "osl":
-                from ..addon.preview.osl import table_texture_pixels
+                from ..addon.blender.preview.osl import table_texture_pixels
 
                 kd = res.profiles.kd
                 values = np.where(res.table.valid, res.table.rho, np.asarray(kd, float)[:, None]).T
@@ -111,7 +111,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
     def finish(self, context, result):
         import math
 
-        from ..addon.state import pack_profiles, plot_image
+        from ..addon.blender.state import pack_profiles, plot_image
 
         out, res, prof, fit, principled, texture = result
         mat = bpy.data.materials[self._mat_name]

@@ -16,8 +16,9 @@ import bpy
 import numpy as np
 
 from ..addon.core.limits import MAX_RENDER_SIZE, MAX_SAMPLES
-from ..addon.jobs import BackgroundJob
-from ..addon.live import FINAL_SAMPLES, label_image, preview_image_name, write_preview_image
+from ..addon.blender.jobs import BackgroundJob
+from ..addon.blender.live import label_image, preview_image_name, write_preview_image
+from ..addon.core.render.live import FINAL_SAMPLES
 from .common import analysed_material
 
 SCENE = "BRDF Moments Preview"
@@ -53,15 +54,15 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
         from ..addon.core.nbrdf import read_table, source_exists, source_file
         from ..addon.core.safeio import guard_output
         from ..addon.core.render import TableBRDF, sphere_layout
-        from ..addon.preview import bake_cache, load_environment, resolve_environment
-        from ..addon.preview.build import resolve_path
+        from ..addon.blender.preview import bake_cache, load_environment, resolve_environment
+        from ..addon.blender.preview.build import resolve_path
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
         if self.use_panel_settings:
             self.path, self.mode, self.env, self.size = (state.preview_path, state.preview_mode, state.preview_env,
                                                          state.preview_size)
-        from ..addon.preview import OSLUnavailable
+        from ..addon.blender.preview import OSLUnavailable
 
         try:
             # Auto is the baked path: the accurate one (OSL tabulated is noisier at the same time)
@@ -101,7 +102,7 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
                 srcs = [orig, TableBRDF(read_merl(edited_path), eprof) if edited_path else orig]
             report_progress(1, 4)
             if path == "baked":
-                from ..addon.preview.build import brdf_of
+                from ..addon.blender.preview.build import brdf_of
 
                 for k, src in enumerate(srcs):
                     cache.get(brdf_of(src), env, layout.diameter, BAKE_SAMPLES)
@@ -118,8 +119,8 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
             raise ValueError(str(exc).strip() or type(exc).__name__) from None
 
     def _finish(self, context, srcs):
-        from ..addon.preview import build_preview, render_still
-        from ..addon.preview.build import bake_cache, brdf_of
+        from ..addon.blender.preview import build_preview, render_still
+        from ..addon.blender.preview.build import bake_cache, brdf_of
 
         job = self._job
         mat = bpy.data.materials[job["mat"]]
@@ -132,7 +133,7 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
                              size=(layout.width, layout.height), samples=self._samples, bake_samples=BAKE_SAMPLES)
         state.preview_material = info.materials[-1]
         if job["path"] == "baked":
-            from ..addon.preview import load_environment
+            from ..addon.blender.preview import load_environment
 
             env = load_environment(job["env_path"])
             tiles = []
@@ -143,7 +144,7 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
         else:
             import tempfile
 
-            from ..addon.preview.osl import cache_dir
+            from ..addon.blender.preview.osl import cache_dir
 
             os.makedirs(cache_dir(), exist_ok=True)
             fd, tmp = tempfile.mkstemp(prefix="preview-", suffix=".exr", dir=cache_dir())

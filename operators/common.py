@@ -1,7 +1,5 @@
 """What the operators share: finding the material they act on, and the analysis job."""
 
-import os
-
 import bpy
 
 
@@ -64,7 +62,7 @@ def store_analysis(mat, path, result) -> str:
     """Write an analysis into the material (and its plot); returns the line to report."""
     import json
 
-    from ..addon.state import plot_image, region_image
+    from ..addon.blender.state import plot_image, region_image
 
     name, prof, fit, regions = result
     state = mat.brdf_moments

@@ -28,12 +28,12 @@ def _write_png(mat, path, edited):
     state = mat.brdf_moments
     prof = state.edited_profiles() if edited else state.profiles()
     if importlib.util.find_spec("matplotlib") is not None:
-        from ..addon.plots import plot_profiles
+        from ..addon.tools.plots import plot_profiles
 
         plot_profiles(prof, path, title=f"{mat.name} ({'edited' if edited else 'measured'})")
         return
     # Blender builds whose Python has no matplotlib (Debian's): the panel's own chart.
-    from ..addon.state import plot_image
+    from ..addon.blender.state import plot_image
 
     img = plot_image(mat, edited=state.edited_profiles() if edited else False)
     with atomic_path(path, ".png") as tmp:

@@ -6,7 +6,7 @@ import os
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-from ..addon.jobs import BackgroundJob
+from ..addon.blender.jobs import BackgroundJob
 from .common import analysis_work, store_analysis, target_material
 
 # Blender keeps only pointers to dynamic enum strings: the items must outlive the callback.

@@ -15,7 +15,7 @@ class BRDFMOMENTS_OT_restore_material(bpy.types.Operator):
     material: bpy.props.StringProperty(name="Material", description="target material (default: active)")
 
     def execute(self, context):
-        from ..addon.material import restore
+        from ..addon.blender.material import restore
 
         try:
             mat = target_material(context, self.material)

@@ -3,7 +3,7 @@ load and analyse, move the sliders, apply (re-synthesize), export, and render th
 of original against edited into OUT as PNG.
 
     python samples/demo.py [--out out] [--sample ggx_glossy] [--size 128]     (bpy module)
-    blender -b -P samples/demo.py -- [--out out] [--sample ...] [--size ...]  (a real Blender)
+    blender -b -P samples/demo.py [-- --out out --sample ... --size ...]  (a real Blender)
 
 Under the bpy module the repository is enabled as an extension; in a real Blender it is
 enabled as a legacy add-on, unless it already is (``--installed``: the test lane installs
@@ -25,7 +25,8 @@ if ROOT not in sys.path:
 
 
 def _args():
-    argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:]
+    from addon.script_args import script_args
+
     p = argparse.ArgumentParser(prog="samples/demo.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=os.path.join(ROOT, "out"))
     p.add_argument("--sample", default="ggx_glossy")
@@ -34,7 +35,7 @@ def _args():
     p.add_argument("--path", choices=("auto", "osl", "baked"), default="auto",
                    help="preview path; auto = OSL where Cycles has it, else baked")
     p.add_argument("--installed", action="store_true", help="the add-on is already enabled")
-    return p.parse_args(argv)
+    return p.parse_args(script_args())
 
 
 def _say(step, text):

@@ -6,6 +6,10 @@
   without the wheel, for Blender 3.4-4.1 (Preferences > Add-ons > Install); there scipy
   comes from the system Python (Debian: python3-scipy).
 
+What ships is the allow-list ``[build] paths`` of blender_manifest.toml (the builder adds the
+manifest and the wheels). The legacy zip needs no wheel, so it is built even when the scipy
+wheel has not been fetched; the extension zip is then skipped, with a warning.
+
 Usage: .venv/bin/python scripts/package.py [OUT_DIR]
 """
 
@@ -17,6 +21,7 @@ import tomllib
 import zipfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MANIFEST = "blender_manifest.toml"
 
 
 def blender_ext_tool():
@@ -34,28 +39,55 @@ def blender_ext_tool():
     return hits[-1]
 
 
-def build(out_dir):
-    with open(os.path.join(ROOT, "blender_manifest.toml"), "rb") as fh:
-        manifest = tomllib.load(fh)
-    missing = [w for w in manifest.get("wheels", []) if not os.path.isfile(os.path.join(ROOT, w))]
-    if missing:
-        raise SystemExit(f"package: wheel(s) missing, run scripts/setup.sh first: {', '.join(missing)}")
-    os.makedirs(out_dir, exist_ok=True)
-    ext = os.path.join(out_dir, f"{manifest['id']}-{manifest['version']}.zip")
-    for path in (ext,):
-        if os.path.exists(path):
-            os.unlink(path)  # the builder refuses to overwrite
-    subprocess.run([sys.executable, blender_ext_tool(), "build", "--source-dir", ROOT, "--output-filepath", ext],
-                   check=True, stdout=subprocess.DEVNULL)
+def _drop_duplicates(path):
+    """Keep the first entry of each name. Blender's builder (4.5 and 5.0) writes the wheels
+    twice when [build] paths is given: it appends them to the paths and adds them again."""
+    with zipfile.ZipFile(path) as src:
+        infos = src.infolist()
+        if len({i.filename for i in infos}) == len(infos):
+            return
+        tmp = path + ".part"
+        seen = set()
+        with zipfile.ZipFile(tmp, "w") as dst:
+            for info in infos:
+                if info.filename not in seen:
+                    seen.add(info.filename)
+                    dst.writestr(info, src.read(info), compress_type=info.compress_type)
+    os.replace(tmp, path)
+
+
+def build_legacy(out_dir, manifest, root=ROOT):
+    """The legacy zip straight from the allow-list (no builder, no wheel)."""
     legacy = os.path.join(out_dir, f"{manifest['id']}-{manifest['version']}-legacy.zip")
     tmp = legacy + ".part"
-    with zipfile.ZipFile(ext) as src, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
-        for info in src.infolist():
-            if info.filename.startswith("wheels/") or info.is_dir():
-                continue
-            dst.writestr(f"{manifest['id']}/{info.filename}", src.read(info))
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
+        for rel in (MANIFEST, *manifest["build"]["paths"]):
+            dst.write(os.path.join(root, rel), f"{manifest['id']}/{rel}")
     os.replace(tmp, legacy)
-    return ext, legacy
+    return legacy
+
+
+def build(out_dir, root=ROOT):
+    """Paths of the archives built: the extension zip (when its wheels are there) and the legacy zip."""
+    with open(os.path.join(root, MANIFEST), "rb") as fh:
+        manifest = tomllib.load(fh)
+    os.makedirs(out_dir, exist_ok=True)
+    built = []
+    missing = [w for w in manifest.get("wheels", []) if not os.path.isfile(os.path.join(root, w))]
+    if missing:
+        print(f"package: skipping the extension zip, wheel(s) missing (run scripts/setup.sh): {', '.join(missing)}",
+              file=sys.stderr)
+    else:
+        ext = os.path.join(out_dir, f"{manifest['id']}-{manifest['version']}.zip")
+        if os.path.exists(ext):
+            os.unlink(ext)  # the builder refuses to overwrite
+        # -W: the builder's second copy of each wheel (removed below) is not the user's concern
+        subprocess.run([sys.executable, "-W", "ignore:Duplicate name", blender_ext_tool(), "build", "--source-dir", root,
+                        "--output-filepath", ext], check=True, stdout=subprocess.DEVNULL)
+        _drop_duplicates(ext)
+        built.append(ext)
+    built.append(build_legacy(out_dir, manifest, root))
+    return built
 
 
 if __name__ == "__main__":

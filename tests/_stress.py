@@ -156,3 +156,14 @@ def exr_bytes(width, height, compression=3, body=b""):
     body = body or bytes(max(16, chunks * 16))
     offsets = [start + (i * 16) % max(len(body) - 16, 1) for i in range(chunks)]
     return head + struct.pack(f"<{chunks}Q", *offsets) + body
+
+
+def build_operator_in_memory(theta_o):
+    """The slice operator built whole in memory, without the cache: what the streamed cache
+    (``integrate.get_operator``) must hold."""
+    from addon.core.integrate import SliceOperator, _build_chunks
+    from addon.core.quadrature import RuleParams
+
+    theta_o = np.asarray(theta_o, dtype=float)
+    parts, offsets = _build_chunks(theta_o, RuleParams(), None)
+    return SliceOperator(theta_o, offsets, **{k: np.concatenate(v) for k, v in parts.items()})

@@ -17,6 +17,16 @@ os.environ.setdefault("BRDF_MOMENTS_SAMPLES", os.path.join(ROOT, ".cache", "samp
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: takes more than a few seconds")
     config.addinivalue_line("markers", "stress: numerical-stability and bad-input suite")
+    config.addinivalue_line("markers", "blender: needs Blender (the bpy module, a blender binary or its "
+                                       "builder); scripts/test.sh --fast runs the tests without it")
+
+
+def pytest_collection_modifyitems(config, items):
+    # A test using the bpy fixture (directly or through another fixture) is a Blender test,
+    # whatever its file says: the fast lane then never starts Blender by accident.
+    for item in items:
+        if "blender" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.blender)
 
 
 @pytest.fixture(scope="session")

@@ -8,6 +8,8 @@ import shutil
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.blender  # the bpy module
+
 
 @pytest.fixture
 def artist(fresh, tmp_path, monkeypatch):
@@ -15,7 +17,7 @@ def artist(fresh, tmp_path, monkeypatch):
     analysed from ggx_glossy; a small Cycles render of the sphere under a constant sky."""
     import samples
     from addon.core.render import sphere_layout
-    from addon.preview import scene as sc, write_environment
+    from addon.blender.preview import scene as sc, write_environment
 
     bpy = fresh
     src = tmp_path / "glossy.binary"
@@ -51,7 +53,7 @@ def artist(fresh, tmp_path, monkeypatch):
 
 
 def _render(bpy, scene, path):
-    from addon.preview import quiet_stdout
+    from addon.blender.preview import quiet_stdout
 
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.filepath = str(path)
@@ -70,8 +72,8 @@ def _tree(mat):
     nodes = sorted((n.name, n.bl_idname, tuple(
         tuple(s.default_value) if hasattr(s.default_value, "__len__") else s.default_value
         for s in n.inputs if hasattr(s, "default_value"))) for n in nt.nodes)
-    links = sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
-                   for l in nt.links)
+    links = sorted((link.from_node.name, link.from_socket.identifier, link.to_node.name, link.to_socket.identifier)
+                   for link in nt.links)
     return nodes, links
 
 
@@ -158,7 +160,7 @@ def test_the_edit_and_the_plot_survive_save_and_reopen(artist):
 
 
 def test_osl_edit_keeps_its_table_texture_packed_in_the_blend(artist):
-    from addon.preview import osl_available
+    from addon.blender.preview import osl_available
 
     bpy, mat, scene, layout, tmp = artist
     if not osl_available()[0]:
@@ -196,10 +198,10 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     from addon.core.edit import EditTargets
     from addon.core.merl import read_merl
     from addon.core.render import TableBRDF, bake_sphere, sphere_layout
-    from addon.preview import load_environment, resolve_environment
+    from addon.blender.preview import load_environment, resolve_environment
 
     bpy, mat, scene, layout, tmp = artist
-    live = sys.modules["bl_ext.bmtest.brdf_moments.addon.live"]
+    live = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.live"]
     state = mat.brdf_moments
     assert bpy.ops.brdf_moments.build_preview(material="Artist", path="BAKED", size=48) == {"FINISHED"}
     before = live.read_preview_image(mat)
@@ -211,12 +213,13 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     d, (l0, l1), top = lay.diameter, lay.lefts, lay.top
     body = slice(top + 12, top + d)                       # below the labels
     np.testing.assert_array_equal(after[body, l0:l0 + d], before[body, l0:l0 + d])
-    # the edited sphere: the bake of one synthesis round of the new sliders, upsampled
+    # the edited sphere: the bake of the draft synthesis of the new sliders, upsampled
+    from addon.core.render.live import LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
+
     table = read_merl(state.source_path)
-    new = live.fast_edit(table, EditTargets(sigma2=state.sigma2), state.profiles(), state.fit(), draft=True)
+    new = fast_edit(table, EditTargets(sigma2=state.sigma2), state.profiles(), state.fit(), draft=True)
     env = load_environment(resolve_environment(None))
-    rgb, cov = bake_sphere(TableBRDF(new, state.profiles()), env, max(d // live.LIVE_DIAMETER_DIV, 8),
-                           live.LIVE_SAMPLES, 0)
+    rgb, cov = bake_sphere(TableBRDF(new, state.profiles()), env, max(d // LIVE_DIAMETER_DIV, 8), LIVE_SAMPLES, 0)
     want = live.upsample(rgb * cov[..., None], d)
     np.testing.assert_allclose(after[body, l1:l1 + d, :3], want[12:], rtol=1e-5, atol=1e-6)
     # a wider lobe: the highlight drops
@@ -241,7 +244,7 @@ def test_the_panel_shows_four_significant_digits_and_the_approximation(artist):
     from tests.test_operators import _Recorder
 
     bpy, mat, *_ = artist
-    panel = import_module("bl_ext.bmtest.brdf_moments.addon.panel")
+    panel = import_module("bl_ext.bmtest.brdf_moments.addon.blender.panel")
     state = mat.brdf_moments
     state.artist_shader, state.strength = "PRINCIPLED", 0.7
     assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
@@ -259,7 +262,7 @@ def test_the_panel_shows_four_significant_digits_and_the_approximation(artist):
 
 
 def test_osl_table_texture_next_to_the_blend_moves_with_it(artist):
-    from addon.preview import osl_available
+    from addon.blender.preview import osl_available
 
     bpy, mat, scene, layout, tmp = artist
     if not osl_available()[0]:

@@ -10,6 +10,8 @@ import sys
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.blender  # lane 2: Debian's blender -b
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BLENDER = shutil.which("blender")
 

@@ -9,6 +9,8 @@ import sys
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.blender  # lane 3: the bpy 5.0 module
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PY50 = os.path.join(ROOT, ".venv-bpy50", "bin", "python")
 # The tests that drive Blender (the engine's own tests do not depend on the bpy version).
@@ -40,7 +42,7 @@ def test_the_blender_tests_pass_under_bpy_50_with_no_deprecated_call(py50, tmp_p
 
 
 def test_a_render_is_the_same_under_45_and_50(py50, tmp_path):
-    """The sampling pattern is set explicitly (addon.compat.fix_sampling_pattern): with
+    """The sampling pattern is set explicitly (addon.blender.compat.fix_sampling_pattern): with
     Cycles' default the two versions' 4-sample OSL renders differ by 340 % RMSE (measured),
     with it they agree to float rounding."""
     import OpenEXR

@@ -23,6 +23,7 @@ def test_help_works():
     assert "profiles" in res.stdout and "bench" in res.stdout
 
 
+@pytest.mark.slow
 def test_profiles_writes_exactly_the_spec_keys(tmp_path):
     import samples
 
@@ -41,6 +42,7 @@ def test_profiles_writes_exactly_the_spec_keys(tmp_path):
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_max_order_limits_the_keys(tmp_path):
     import samples
 
@@ -71,6 +73,7 @@ def test_missing_file_and_bad_options_exit_2(tmp_path):
     assert res.returncode == 2 and "[0, 90)" in res.stderr
 
 
+@pytest.mark.slow
 def test_edit_without_sliders_copies_values_and_never_overwrites(tmp_path):
     import hashlib
 

@@ -120,6 +120,7 @@ def test_truncated_moments_and_density_agree_with_scipy_far_into_the_tails(m, s)
     np.testing.assert_allclose(np.log(g[finite]), logref[finite], rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_reported_moments_are_the_written_tables(glossy, tmp_path):
     """What the edit reports (fit and per-view figures) is what re-reading the written file shows."""
     from addon.core.merl import read_merl, write_merl

@@ -43,11 +43,13 @@ def _check_views(fid):
     assert all(c.views >= 10 for c in fid.channels.values())  # a real number of views was judged
 
 
+@pytest.mark.slow
 def test_every_view_follows_a_variance_edit(narrowed):
     _check_views(narrowed.fidelity)
     assert not narrowed.clamped
 
 
+@pytest.mark.slow
 def test_fidelity_is_measured_on_the_written_table(glossy, narrowed):
     """The result's figures are those of re-measuring the table itself (the stick is not the solver)."""
     table, prof, fit = glossy
@@ -85,6 +87,7 @@ def test_every_view_follows_on_a_measured_material(sample_table):
     assert all(c.views >= 30 for c in fid.channels.values())
 
 
+@pytest.mark.slow
 def test_reciprocal_and_missing_cells_stay_missing(glossy):
     table, prof, fit = glossy
     valid = table.valid.copy()
@@ -110,10 +113,11 @@ def test_identity_and_energy_only_are_exact(glossy):
     np.testing.assert_array_equal(res.table.rho, table.rho)
     assert res.fidelity.worst("variance_worst") < 1e-4  # the stick reads the identity as exact
     res = edit(table, EditTargets(strength=0.8), prof, fit)
-    for i, ch in enumerate("rgb"):
+    for ch in "rgb":
         np.testing.assert_allclose(res.profiles[ch]["alpha"], 0.8 * prof[ch]["alpha"], rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_small_slider_moves_make_small_table_changes(glossy):
     """Continuity: a 1e-5 slider move changes the lit cells by ~1e-5 (measured 3e-5 median, so the
     bound is 10x that), a 0.1 % move by well under 1 %, and a 10 % move by far more. (With a
@@ -133,6 +137,7 @@ def test_small_slider_moves_make_small_table_changes(glossy):
     assert change[0.1][0] > 5 * change[1e-3][0]
 
 
+@pytest.mark.slow
 def test_deterministic(glossy):
     table, prof, fit = glossy
     t = EditTargets(sigma2=fit["sigma2"] * 1.3)
@@ -141,6 +146,7 @@ def test_deterministic(glossy):
     np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow
 def test_requests_outside_the_region_are_clamped_and_said_so(glossy):
     table, prof, fit = glossy
     region = reachable_region(prof, fit)

@@ -12,6 +12,8 @@ from addon.core.fits import fit_material
 from addon.core.merl import read_merl
 from addon.core.profiles import compute_profiles
 
+pytestmark = pytest.mark.blender  # the extension in the bpy module
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 

@@ -7,6 +7,8 @@ import time
 
 import pytest
 
+pytestmark = pytest.mark.blender  # the job runner in the bpy module
+
 
 class _WM:
     def __init__(self):
@@ -54,7 +56,7 @@ class _Event:
 def job_class(blender):
     import sys
 
-    jobs = sys.modules["bl_ext.bmtest.brdf_moments.addon.jobs"]
+    jobs = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.jobs"]
 
     class Job(jobs.BackgroundJob):
         job_label = "Testing"
@@ -128,7 +130,7 @@ def test_progress_reaches_the_status_bar_and_the_result_is_written_back(job_clas
 def test_every_event_but_esc_passes_through_and_right_click_does_not_cancel(job_class):
     import sys
 
-    jobs = sys.modules["bl_ext.bmtest.brdf_moments.addon.jobs"]
+    jobs = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.jobs"]
     gate = threading.Event()
 
     def work(report_progress):
@@ -171,7 +173,7 @@ def test_esc_is_consumed_by_the_job(job_class):
     assert not op._thread.is_alive() and op.finished_with is None  # the late result is dropped
     import sys
 
-    assert sys.modules["bl_ext.bmtest.brdf_moments.addon.jobs"].HISTORY[-1]["outcome"] == "cancelled"
+    assert sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.jobs"].HISTORY[-1]["outcome"] == "cancelled"
 
 
 def test_esc_cancels_and_changes_nothing(job_class):

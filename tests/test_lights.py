@@ -84,6 +84,7 @@ def many_lights_env(count=40, width=256, height=128):
     return Environment.from_function(fn, width, height)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, bound", [("ggx_glossy", 0.6), ("ggx_mirror", 0.9)])
 def test_choice_keeps_the_bake_unbiased_and_lowers_its_noise(sample_table, monkeypatch, name, bound):
     """Under 40 small lights. The disk's mean, from two 64-sample bakes, agrees within 1.5 %

@@ -66,6 +66,7 @@ def test_unknown_material_and_material_on_a_merl_file(tmp_path):
     assert res.returncode == 2 and f"{merl}:x: cannot read file" in res.stderr
 
 
+@pytest.mark.slow
 def test_edit_a_network_writes_a_merl_file_and_never_the_weights(tmp_path):
     before = open(RGL, "rb").read()
     out = tmp_path / "gold.binary"
@@ -80,6 +81,7 @@ def test_edit_a_network_writes_a_merl_file_and_never_the_weights(tmp_path):
     assert open(RGL, "rb").read() == before
 
 
+@pytest.mark.slow
 def test_fit_and_analyze_a_folder_of_npy_and_two_sets_with_a_shared_name(tmp_path):
     folder = tmp_path / "npy"
     folder.mkdir()

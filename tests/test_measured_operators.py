@@ -12,6 +12,8 @@ from addon.core import nbrdf
 from addon.core.fits import fit_material
 from addon.core.profiles import compute_profiles
 
+pytestmark = pytest.mark.blender  # the operators in the bpy module
+
 RGL = os.path.join(samples.MEASURED_DIR, "nbrdf-rgl-isotropic.npz")
 NIELSEN = os.path.join(samples.MEASURED_DIR, "nbrdf-nielsen.npz")
 

@@ -3,7 +3,6 @@
 
 import hashlib
 import json
-import math
 import os
 import shutil
 
@@ -13,6 +12,8 @@ import pytest
 from addon.core.fits import fit_material
 from addon.core.merl import read_merl
 from addon.core.profiles import compute_profiles
+
+pytestmark = pytest.mark.blender  # the operators in the bpy module
 
 
 def _sha(path):
@@ -160,7 +161,7 @@ def test_panel_draws_every_state_with_real_properties_and_operators(analysed):
     from importlib import import_module
 
     bpy, mat, _ = analysed
-    panel = import_module("bl_ext.bmtest.brdf_moments.addon.panel")
+    panel = import_module("bl_ext.bmtest.brdf_moments.addon.blender.panel")
     for step in ("analysed", "edited"):
         if step == "edited":
             mat.brdf_moments.strength = 0.9
@@ -177,7 +178,7 @@ def test_panel_draws_every_state_with_real_properties_and_operators(analysed):
 def test_every_operator_is_undo_aware(blender):
     import sys
 
-    reg = sys.modules["bl_ext.bmtest.brdf_moments.addon.registration"]
+    reg = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.registration"]
     for op in reg.OPERATORS:
         if op.bl_idname in {"brdf_moments.export", "brdf_moments.show_image"}:
             continue  # writes files / changes what a window shows: nothing in the .blend to undo
@@ -222,7 +223,7 @@ def test_build_preview_baked_renders_original_and_edited(analysed, tmp_path):
 
 
 def test_slider_drag_updates_the_osl_preview_without_resynthesis(analysed, tmp_path):
-    from addon.preview import osl_available
+    from addon.blender.preview import osl_available
 
     bpy, mat, _ = analysed
     if not osl_available()[0]:

@@ -12,6 +12,8 @@ import sys
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.blender  # Cycles through the bpy module
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 A, B = 1.0, 0.5            # sky L = A + B z: a Lambertian of albedo 0.8 shows 0.8 (A + 2 B n_z / 3)
 
@@ -33,7 +35,7 @@ def scene(bpy):
 @pytest.fixture(scope="module")
 def sky(bpy, tmp_path_factory):
     from addon.core.render import Environment
-    from addon.preview import write_environment
+    from addon.blender.preview import write_environment
 
     env = Environment.from_function(lambda d: np.repeat(A + B * d[:, 2:3], 3, axis=1), 256, 128)
     return write_environment(env.pixels, str(tmp_path_factory.mktemp("env") / "sky.exr"))
@@ -43,7 +45,7 @@ def sky(bpy, tmp_path_factory):
 def sun(bpy, tmp_path_factory):
     """A dim sky and a small bright sun up and to the camera's left, so a highlight shows."""
     from addon.core.render import Environment
-    from addon.preview import write_environment
+    from addon.blender.preview import write_environment
 
     s = np.array([-0.3, -0.8, 0.5]) / np.linalg.norm([-0.3, -0.8, 0.5])
     env = Environment.from_function(lambda d: np.repeat(0.05 + 300.0 * (d @ s > math.cos(0.04))[:, None], 3, 1),
@@ -82,9 +84,9 @@ def lambert_as_lobe(sample_table):
 
 
 def test_osl_shaders_compile_under_the_bpy_wheel(bpy, scene, tmp_path):
-    from addon.preview import compile_shader, osl_available
-    from addon.compat import node_tree
-    from addon.preview.osl import SHADERS, script_node
+    from addon.blender.preview import compile_shader, osl_available
+    from addon.blender.compat import node_tree
+    from addon.blender.preview.osl import SHADERS, script_node
 
     assert osl_available() == (True, "")
     for mode, name in SHADERS.items():
@@ -98,7 +100,7 @@ def test_osl_shaders_compile_under_the_bpy_wheel(bpy, scene, tmp_path):
 def test_baked_lambertian_render_matches_the_closed_form(scene, sky, sample_table, tmp_path, bpy):
     """Through Cycles: bake, float image, emission, box filter. Tolerance 2e-3: the map holds
     the sky texel-constant (256 x 128), which moves the irradiance by about 1e-3."""
-    from addon.preview import build_preview, render_still
+    from addon.blender.preview import build_preview, render_still
 
     info = build_preview(scene, sample_table("lambertian"), path="baked", env=sky, size=64, samples=4)
     assert info.path == "baked" and info.baked == ["BRDFM Original"]
@@ -114,7 +116,7 @@ def test_osl_lambertian_render_matches_the_closed_form(mode, scene, sky, sample_
     """OSL, with the Lambertian carried by the lobe (no kd): 16 pixel samples x 16 lobe samples.
     Unbiased, so the mean over the disk is within 1 %; the per-pixel spread is noise, bounded
     by a per-sample relative spread of 1.5 (measured 0.13 model, 0.7 tabulated)."""
-    from addon.preview import build_preview, render_still
+    from addon.blender.preview import build_preview, render_still
 
     model, table = lambert_as_lobe(sample_table)
     info = build_preview(scene, model if mode == "model" else table, path="osl", mode=mode, env=sky, size=48,
@@ -129,7 +131,7 @@ def test_osl_lambertian_render_matches_the_closed_form(mode, scene, sky, sample_
 def test_osl_diffuse_closure_carries_kd(scene, sky, sample_table, tmp_path, bpy):
     """kd split on: no specular part, so only the diffuse closure (Cycles' own path tracing).
     64 samples: mean within 1 %, per-pixel rms within 3 % (measured 1.1 %)."""
-    from addon.preview import build_preview, render_still
+    from addon.blender.preview import build_preview, render_still
 
     info = build_preview(scene, sample_table("lambertian"), path="osl", mode="tabulated", env=sky, size=48,
                          samples=64)
@@ -143,8 +145,8 @@ def test_osl_diffuse_closure_carries_kd(scene, sky, sample_table, tmp_path, bpy)
 def test_osl_glossy_agrees_with_the_numpy_reference(mode, scene, sample_table, tmp_path, bpy):
     """Same view, map and BRDF in two renderers: the frames, the mapping and the measure agree."""
     from addon.core.render import ModelBRDF, render_reference
-    from addon.preview import build_preview, load_environment, render_still, resolve_environment
-    from addon.preview.build import brdf_of, model_params
+    from addon.blender.preview import build_preview, load_environment, render_still, resolve_environment
+    from addon.blender.preview.build import brdf_of, model_params
 
     table = sample_table("ggx_glossy")
     env_path = resolve_environment("courtyard")
@@ -177,7 +179,7 @@ def test_larger_variance_gives_a_lower_blurrier_highlight(path, scene, sun, tmp_
     """The slider moved sigma2 from 0.004 to 0.016 (4x): the highlight of the sun must get
     lower and wider (its area roughly follows the variance) while the energy stays."""
     from addon.core.render import MomentParams
-    from addon.preview import build_preview, render_still
+    from addon.blender.preview import build_preview, render_still
 
     original = MomentParams((0.8,) * 3, (0.8,) * 3, (0.0,) * 3, 0.8, 1.3, -1.0, 0.004, (0.02,) * 3)
     edited = original.edited(sigma2=0.016)
@@ -193,11 +195,11 @@ def test_larger_variance_gives_a_lower_blurrier_highlight(path, scene, sun, tmp_
 
 def test_touching_one_of_ten_materials_rebakes_one(scene, sun, bpy):
     from addon.core.render import BakeCache, MomentParams
-    from addon.preview import build_row, refresh_baked, set_source, source_of
+    from addon.blender.preview import build_row, refresh_baked, set_source, source_of
 
     base = MomentParams((0.5,) * 3, (0.6,) * 3, (0.2,) * 3, 0.8, 1.3, -1.0, 0.02, (0.03,) * 3)
     params = [base.edited(strength=0.5 + 0.1 * k) for k in range(10)]
-    import addon.preview.build as build
+    import addon.blender.preview.build as build
 
     build.CACHE = BakeCache()              # count bakes from zero (no disk cache)
     info = build_row(scene, params, labels=[f"m{k}" for k in range(10)], path="baked", env=sun,

@@ -7,6 +7,8 @@ import subprocess
 
 import pytest
 
+pytestmark = pytest.mark.blender  # Debian's blender -b
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BLENDER = shutil.which("blender")
 

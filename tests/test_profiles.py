@@ -105,6 +105,7 @@ def _ring_table(ring=0):
     return MerlTable(np.stack([v, v, v]), np.ones((3, N_CELLS), bool))
 
 
+@pytest.mark.slow
 def test_mirror_like_table_has_mean_at_the_mirror_and_vanishing_variance():
     # Only the first theta_h cell (within 2e-4 rad of the half vector = normal) is lit: the
     # narrowest lobe a MERL table can hold.
@@ -206,6 +207,7 @@ def test_kd_is_the_minimum_of_the_45_degree_slice(sample_table):
     assert np.all(kd >= want) and np.all(kd < want + 2e-3)
 
 
+@pytest.mark.slow
 def test_trilinear_matches_nearest_on_a_smooth_broad_material(sample_table):
     table = sample_table("ggx_rough")
     to = np.radians([10.0, 45.0, 70.0])

@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pytest
 
-from _stress import ROOT, assert_one_line_error, exr_bytes, run_cli, sha256
+from _stress import ROOT, assert_one_line_error, build_operator_in_memory, exr_bytes, run_cli, sha256
 
 pytestmark = pytest.mark.stress
 
@@ -290,7 +290,7 @@ def test_an_operator_cache_with_changed_values_is_rebuilt(gold, tmp_path, stress
     integrate.get_operator(views, cache_dir=str(tmp_path))
     integrate._MEMO.clear()
     (folder,) = [tmp_path / n for n in os.listdir(tmp_path) if n.startswith(integrate._OPERATOR_PREFIX)]
-    fresh = integrate.build_operator(views)
+    fresh = build_operator_in_memory(views)
     for case, part, damage in [("weights scaled, same size", "weights.npy", "scale"),
                                ("cell index out of range", "cells.npy", "index"),
                                ("truncated part", "local.npy", "truncate"),
@@ -443,7 +443,7 @@ def test_operator_properties_share_the_bounds():
     with open(os.path.join(ROOT, "operators", "build_preview.py")) as fh:
         src = fh.read()
     assert "max=MAX_RENDER_SIZE" in src and "max=MAX_SAMPLES" in src
-    with open(os.path.join(ROOT, "addon", "state.py")) as fh:
+    with open(os.path.join(ROOT, "addon", "blender", "state.py")) as fh:
         assert "max=MAX_RENDER_SIZE" in fh.read()
     assert limits.MAX_RENDER_SIZE == 4096 and limits.check_int(16, "Size", 16, 4096) == 16
     with pytest.raises(ValueError, match="between"):
@@ -577,7 +577,7 @@ def test_bad_cache_and_samples_settings_are_one_line(tmp_path, stress_log):
 def test_damaged_stored_profiles_are_refused_in_one_line(blender, stress_log):
     import base64
 
-    from addon.state import pack_profiles, unpack_profiles  # the module needs bpy (its property group)
+    from addon.blender.state import pack_profiles, unpack_profiles  # the module needs bpy (its property group)
 
     from addon.core.profiles import Profiles
 
@@ -629,7 +629,7 @@ def test_distinct_inputs_get_distinct_outputs(gold, tmp_path, stress_log):
 # --- 9. leftovers -------------------------------------------------------------------------------
 
 def test_a_failed_analyze_leaves_nothing(gold, tmp_path, monkeypatch, stress_log):
-    import addon.analyze as an
+    import addon.tools.analyze as an
 
     def boom(*a, **k):
         raise ValueError("plot failed")
@@ -699,7 +699,7 @@ def test_a_render_child_that_dies_is_one_line(gold, tmp_path, monkeypatch, stres
     # Should Blender itself die (a signal), the command still ends in one line and exit 2.
     import argparse
 
-    import addon.render_command as rc
+    import addon.tools.render_command as rc
 
     class Died:
         pid = 2 ** 22 + 12345  # no such process: its journal entries, if any, are swept

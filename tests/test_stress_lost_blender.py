@@ -31,7 +31,7 @@ def analysed_gold(fresh, tmp_path):
 
 
 def _maps(bpy, folder):
-    from addon.preview import write_environment
+    from addon.blender.preview import write_environment
 
     maps = {}
     big = folder / "huge.exr"
@@ -48,7 +48,7 @@ def _maps(bpy, folder):
 
 
 def test_build_preview_refuses_bad_maps_on_both_paths_and_blender_lives(analysed_gold, tmp_path, stress_log):
-    from addon.preview import osl_available
+    from addon.blender.preview import osl_available
 
     bpy, mat, src = analysed_gold
     maps = _maps(bpy, tmp_path)
@@ -67,7 +67,7 @@ def test_build_preview_refuses_bad_maps_on_both_paths_and_blender_lives(analysed
 
 
 def test_build_preview_never_renders_over_its_map(analysed_gold, tmp_path, stress_log):
-    from addon.preview import write_environment
+    from addon.blender.preview import write_environment
 
     bpy, mat, src = analysed_gold
     env = write_environment(np.full((16, 32, 3), 0.5, np.float32), str(tmp_path / "sky.exr"))
@@ -120,7 +120,7 @@ def test_a_damaged_table_texture_is_written_again_under_a_new_name(fresh, tmp_pa
 
     from addon.core.merl import read_merl
     from addon.core.render import TableBRDF
-    from addon.preview.osl import write_table_texture
+    from addon.blender.preview.osl import write_table_texture
 
     brdf = TableBRDF(read_merl(samples.sample_path("gold")))
     first = write_table_texture(brdf, str(tmp_path))

@@ -13,7 +13,7 @@ import pytest
 from scipy.special import ndtr
 from scipy.stats import truncnorm
 
-from _stress import assert_profiles_sane
+from _stress import assert_profiles_sane, build_operator_in_memory
 from addon.core.integrate import get_operator, table_sums
 from addon.core.merl import N_CELLS, MerlTable, cell_indices
 from addon.core.moments import exponents, monomials, profiles_from_sums, shift_amplification
@@ -221,13 +221,13 @@ def test_zero_channel_is_undefined_not_nan_in_json(sample_table, stress_log):
 def test_operator_streamed_into_the_cache_equals_the_in_memory_build(tmp_path):
     # The cache is written view by view (low peak memory); it must hold exactly what an
     # in-memory build computes, including the centroid data the recentring reads.
-    from addon.core.integrate import _MEMO, build_operator
+    from addon.core.integrate import _MEMO
 
     views = np.radians([0.0, 33.0, 88.0])
     get_operator(views, cache_dir=str(tmp_path))
     _MEMO.clear()
     cached = get_operator(views, cache_dir=str(tmp_path))
-    fresh = build_operator(views)
+    fresh = build_operator_in_memory(views)
     for k in ("offsets", "cells"):
         np.testing.assert_array_equal(np.asarray(getattr(cached, k)), np.asarray(getattr(fresh, k)), err_msg=k)
     # Since operator version 8 the strip lines' cell edges are found by bisection on the cell

@@ -17,8 +17,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from _stress import ROOT, assert_one_line_error, run_cli, sha256
-from addon.analyze import safe_output_name
-from addon.core.names import safe_export_path, safe_name
+from addon.core.names import distinct_name, safe_export_path, safe_name
 
 pytestmark = pytest.mark.stress
 
@@ -212,7 +211,7 @@ def test_any_text_becomes_a_file_name_inside_the_folder(tmp_path, stress_log, na
     assert base not in (".", "..") and "/" not in base and "\x00" not in base and not base.startswith(".")
     assert len(base.encode("utf-8")) <= 255
     assert safe_name(safe_name(name)) == safe_name(name)  # cleaning is idempotent
-    other = safe_output_name(name)  # the analyze command's per-material names: same guarantees
+    other = distinct_name(name)  # the analyze command's per-material names: same guarantees
     assert "/" not in other and "\x00" not in other and other not in (".", "..") and not other.startswith(".")
     assert len(other.encode("utf-8")) <= 250
     stress_log.record("safety: export names (random text)", "valid" if safe_name(name) == name else "clamped")

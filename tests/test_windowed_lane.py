@@ -15,6 +15,8 @@ import sys
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.blender  # Blender in a window under Xvfb
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ARTIFACTS = os.path.join(ROOT, "out", "test-artifacts", "windowed")
 TOOLS = ("blender", "xvfb-run", "xdotool", "import")

@@ -188,3 +188,10 @@ def atomic_path(path, suffix="", inputs=()):
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
             raise
+
+
+def write_json_atomic(data, path, inputs=()):
+    """Write JSON atomically; ``allow_nan=False`` means no NaN can get in."""
+    with atomic_path(path, ".json", inputs) as tmp, open(tmp, "w") as fh:
+        json.dump(data, fh, allow_nan=False)
+        fh.write("\n")

@@ -14,6 +14,9 @@ import math
 import numpy as np
 
 LAMBERT_VARIANCE = math.pi ** 2 / 12
+# The model's narrowest lobe: narrower than any MERL cell near the mirror, so a "mirror" for the
+# table. Edit targets, the preview's model, the panel and the OSL shaders all clamp to it.
+MIN_SIGMA2 = 1e-7
 DEFAULT_RANGE = (0.0, math.radians(85.0))
 KNOT_START = (math.radians(45.0), math.radians(75.0))
 KNOT_BOUNDS = (0.0, math.radians(90.0))
@@ -34,7 +37,7 @@ def energy_basis(t, theta0, theta1):
     t = np.asarray(t, dtype=float)
     theta0 = np.asarray(theta0, dtype=float)[..., None]
     theta1 = np.asarray(theta1, dtype=float)[..., None]
-    span = theta1 - theta0
+    span = np.maximum(theta1 - theta0, 1e-9)  # the fit keeps knots >= 1 deg apart; a fits file may not
     s = np.clip((t - theta0) / span, 0.0, 1.0)
     after = t > theta1
     h00 = np.where(after, 0.0, 2 * s ** 3 - 3 * s ** 2 + 1)
@@ -44,6 +47,8 @@ def energy_basis(t, theta0, theta1):
 
 
 def energy_curve(t, alpha_b, theta0, theta1, alpha1, m1):
+    """The energy curve at the views ``t`` (n,): (n,) for one channel, (n, c) when the
+    amplitudes ``alpha_b``, ``alpha1``, ``m1`` are given per channel (each of shape (c,))."""
     return energy_basis(t, theta0, theta1) @ np.array([alpha_b, alpha1, m1], dtype=float)
 
 

@@ -26,10 +26,6 @@ def view_centred_angles(w):
     return theta, phi
 
 
-def view_direction(theta_o):
-    return view_centred(theta_o, 0.0)
-
-
 def _rot_z(v, a):
     c, s = np.cos(a), np.sin(a)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]

@@ -160,13 +160,6 @@ def _build_chunks(theta_o, params, progress):
     return parts, offsets
 
 
-def build_operator(theta_o, params: RuleParams = RuleParams(), progress=None) -> SliceOperator:
-    """Build in memory (no cache). ``get_operator`` is the cached, lower-peak-memory path."""
-    theta_o = np.asarray(theta_o, dtype=float)
-    parts, offsets = _build_chunks(theta_o, params, progress)
-    return SliceOperator(theta_o, offsets, **{k: np.concatenate(v) for k, v in parts.items()})
-
-
 def _operator_key(theta_o, params):
     h = hashlib.sha256()
     h.update(repr((OPERATOR_VERSION, params.key())).encode())
@@ -315,7 +308,7 @@ def sweep_operator_cache(parent, keep=()) -> list:
         current.append((float("inf") if name in keep else used, name, size))
     current.sort(reverse=True)
     total, count = 0, 0
-    for used, name, size in current:
+    for _used, name, size in current:
         total += size
         count += 1
         if (count > OPERATOR_CACHE_MAX_ENTRIES or total > OPERATOR_CACHE_MAX_BYTES) and name not in keep:

@@ -14,7 +14,7 @@ import numpy as np
 
 from .atomic import atomic_path
 from .geometry import HALF_PI, half_diff_from_directions
-from .safeio import UnsafePath, display_path, guard_output, open_input
+from .safeio import UnsafePath, guard_output, open_input
 
 RES_TH, RES_TD, RES_PD = 90, 90, 180
 N_CELLS = RES_TH * RES_TD * RES_PD
@@ -56,8 +56,9 @@ class MerlTable:
             return self.label
         if not self.path:
             return "material"
-        base = os.path.basename(self.path)
-        return base[: -len(".binary")] if base.endswith(".binary") else os.path.splitext(base)[0]
+        from .names import file_stem
+
+        return file_stem(self.path)
 
     def copy(self) -> "MerlTable":
         return MerlTable(self.rho.copy(), self.valid.copy(), self.path, self.label)

@@ -17,6 +17,21 @@ _RESERVED = {"con", "prn", "aux", "nul", *(f"com{i}" for i in range(10)), *(f"lp
 MAX_NAME_BYTES = 200  # below the 255-byte limit of common file systems, with room for a suffix
 
 
+def file_stem(path) -> str:
+    """A material's name from its file: the base name without ``.binary`` (or another extension)."""
+    base = os.path.basename(os.fspath(path))
+    return base[: -len(".binary")] if base.endswith(".binary") else os.path.splitext(base)[0]
+
+
+def material_name(source) -> str:
+    """A material's name from its source: NAME of ``FILE:NAME`` (a material of a Neural-BRDF
+    weights set), else the file's stem."""
+    from .nbrdf import parse_source
+
+    path, name = parse_source(os.fspath(source))
+    return name or file_stem(path)
+
+
 def safe_name(name: str, default: str = "material") -> str:
     """``name`` as a single file name: separators and control characters become ``_``."""
     text = unicodedata.normalize("NFC", str(name))

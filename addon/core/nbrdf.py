@@ -46,7 +46,7 @@ class WeightsError(MerlError):
 
 
 def _names(names) -> str:
-    from .merl import display_path
+    from .safeio import display_path
 
     return ", ".join(display_path(n) for n in names)  # control characters escaped: one line
 
@@ -271,11 +271,6 @@ def load_network(path, name: str | None = None) -> Network:
         close = difflib.get_close_matches(name, sorted(groups), n=4, cutoff=0.5) or sorted(groups)[:4]
         raise WeightsError(path, f"no material {name!r}; it has {len(groups)}, e.g. {_names(close)}")
     return _network(path, name, groups[name])
-
-
-def load_set(path) -> list[Network]:
-    groups = _groups(path)
-    return [_network(path, n, groups[n]) for n in sorted(groups)]
 
 
 # --- evaluation --------------------------------------------------------------------------

@@ -16,7 +16,7 @@ import math
 import numpy as np
 from scipy.special import log_ndtr, ndtr
 
-HALF_PI = 0.5 * math.pi
+from .geometry import HALF_PI
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 # Nearer the limit the Gaussian's width runs away (s ~ 18 at 0.999 and the centre; at the edges

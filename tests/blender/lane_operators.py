@@ -8,7 +8,10 @@ import sys
 
 import bpy
 
-argv = sys.argv[sys.argv.index("--") + 1:]
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+from addon.script_args import script_args  # noqa: E402
+
+argv = script_args()
 out = argv[argv.index("--out") + 1]
 mat = next(m for m in bpy.data.materials if m.brdf_moments.analysed)
 state = mat.brdf_moments

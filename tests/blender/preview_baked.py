@@ -11,8 +11,10 @@ import math
 import os
 import sys
 
-argv = sys.argv[sys.argv.index("--") + 1:]
-ROOT, OUT = argv[0], argv[1]
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+from addon.script_args import script_args  # noqa: E402
+
+ROOT, OUT = script_args()[:2]
 sys.path.insert(0, ROOT)
 
 import bpy  # noqa: E402
@@ -23,7 +25,7 @@ from addon.core.merl import read_merl  # noqa: E402
 from addon.core.profiles import compute_profiles  # noqa: E402
 from addon.core.render import Environment  # noqa: E402
 from addon.core.render.scene import texel_positions  # noqa: E402
-from addon import preview  # noqa: E402
+from addon.blender import preview  # noqa: E402
 
 A, B = 1.0, 0.5
 os.makedirs(OUT, exist_ok=True)

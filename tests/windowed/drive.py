@@ -20,7 +20,10 @@ import traceback
 
 import bpy
 
-argv = sys.argv[sys.argv.index("--") + 1:]
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+from addon.script_args import script_args  # noqa: E402  (the repository's, not the installed add-on's)
+
+argv = script_args()
 OUT = argv[argv.index("--out") + 1]
 GOLD = argv[argv.index("--gold") + 1]
 OTHER = argv[argv.index("--other") + 1]
@@ -32,7 +35,7 @@ ticks = []  # main-loop timer ticks (time.monotonic)
 
 
 def jobs():
-    return sys.modules["brdf_moments.addon.jobs"]
+    return sys.modules["brdf_moments.addon.blender.jobs"]
 
 
 def log(*args):

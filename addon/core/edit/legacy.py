@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import log_ndtr
 
-from ..fits import LAMBERT_VARIANCE, correlation_curve, fit_material
+from ..fits import LAMBERT_VARIANCE, fit_material
 from ..geometry import HALF_PI, directions_from_half_diff, view_centred_angles
 from ..merl import MerlTable, cell_centres, cell_indices_view
 from ..profiles import Profiles, compute_profiles, specular_values

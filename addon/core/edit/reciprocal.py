@@ -24,12 +24,11 @@ is continuous (no bisection, no picking among rounds).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import HALF_PI, directions_from_half_diff
+from ..geometry import directions_from_half_diff
 from ..integrate import SliceOperator
 from ..merl import RES_PD, RES_TD, RES_TH, MerlTable, cell_centres
 

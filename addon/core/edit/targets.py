@@ -10,11 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fits import LAMBERT_VARIANCE, correlation_curve, energy_curve
+from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, correlation_curve, energy_curve
 from ..profiles import Profiles
 
 MODES = ("warp", "model")
-MIN_SIGMA2 = 1e-7  # narrower than any MERL cell near the mirror: a "mirror" for the table
 RGB = ("r", "g", "b")
 
 

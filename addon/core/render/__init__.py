@@ -6,8 +6,8 @@ Public API
     world mapping; ``.constant(rgb)``, ``.from_function(fn)``; lookups, sampling, irradiance.
 ``sphere_layout(width, height=None, count=2) -> Layout``: pixel-aligned row of unit spheres
     under an orthographic camera looking along +y.
-``MomentParams`` (the moment model of a material; ``.from_fit(fit, kd)``, ``.edited(...)``),
-    ``make_brdf(MerlTable | MomentParams, profiles=None)`` -> ``TableBRDF`` / ``ModelBRDF``.
+``MomentParams`` (the moment model of a material; ``.from_fit(fit, kd)``, ``.edited(...)``);
+    the BRDFs the estimators take: ``TableBRDF(MerlTable, profiles=None)``, ``ModelBRDF(MomentParams)``.
 ``bake_sphere(brdf, env, diameter, lobe_samples, seed) -> (radiance, coverage)``: the baked
     path's texture. ``render_baked(layout, brdfs, env, ...)``: the image it shows.
 ``render_reference(layout, brdfs, env, spp, seed)``: the converged Monte Carlo ground truth.
@@ -20,13 +20,13 @@ from .cache import BakeCache, bake_key
 from .envmap import Environment, direction_to_uv, uv_to_direction
 from .estimators import (bake_sphere, normalized_rmse, reference_sphere, relative_rmse, render_baked,
                          render_reference)
-from .lobe import (LobeTable, ModelBRDF, MomentParams, TableBRDF, make_brdf, truncated_params, truncnorm_mass,
-                   truncnorm_moments, truncnorm_pdf, truncnorm_sample)
+from .lobe import (LobeTable, ModelBRDF, MomentParams, TableBRDF, truncated_params, truncnorm_mass, truncnorm_pdf,
+                   truncnorm_sample)
 from .scene import VIEW, Layout, interior_texels, local_frames, sphere_layout, sphere_points
 
 __all__ = [
     "BakeCache", "bake_key", "Environment", "direction_to_uv", "uv_to_direction", "bake_sphere", "reference_sphere",
     "relative_rmse", "normalized_rmse", "render_baked", "render_reference", "LobeTable", "ModelBRDF", "MomentParams", "TableBRDF",
-    "make_brdf", "truncated_params", "truncnorm_mass", "truncnorm_moments", "truncnorm_pdf", "truncnorm_sample", "VIEW", "Layout",
+    "truncated_params", "truncnorm_mass", "truncnorm_pdf", "truncnorm_sample", "VIEW", "Layout",
     "interior_texels", "local_frames", "sphere_layout", "sphere_points",
 ]

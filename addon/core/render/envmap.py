@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from ..geometry import HALF_PI
 
 NEGATIVE_SHARE = 1e-3  # of a map's light; filtered HDRIs hold slight negatives (Blender's courtyard: -1.6e-4)
 
@@ -291,9 +292,6 @@ class BrightTexels:
         rad = np.where(inside[:, None], self.radiance[s], 0.0) if self.size else np.zeros((len(slot), 3))
         pdf = np.where(inside, self.p[s] / self.omega[s], 0.0) if self.size else np.zeros(len(slot))
         return rad, pdf
-
-
-HALF_PI = 0.5 * math.pi
 
 
 def direction_to_uv(d):

@@ -14,10 +14,10 @@ import math
 
 import numpy as np
 
+from ..geometry import HALF_PI
 from .envmap import _direction
 
 POWER_SHARE = 0.15          # the defensive share drawn by power alone
-HALF_PI = 0.5 * math.pi
 
 
 def light_clusters(bright, count=32):

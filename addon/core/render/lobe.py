@@ -20,9 +20,9 @@ import numpy as np
 from scipy.special import ndtr, ndtri
 
 from .. import truncated as _truncated
+from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, energy_curve
+from ..geometry import HALF_PI
 
-HALF_PI = 0.5 * math.pi
-LAMBERT_VARIANCE = math.pi ** 2 / 12
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 # Widest Gaussian used: within 0.3 % of uniform on the interval, and float32 (the OSL
 # shader) still resolves its truncated variance. The Lambertian limit is reached here.
@@ -76,36 +76,6 @@ def truncated_params(mean, var, iters=40):
     return m, s
 
 
-def _z_moments(m, s):
-    """E[z], central c2, c3, c4 and raw E[z^3] of z = (x - m)/s, x ~ N(m, s^2) on [-pi/2, pi/2]."""
-    a, b = (-HALF_PI - m) / s, (HALF_PI - m) / s
-    z = truncnorm_mass(m, s)
-    pa = np.exp(-0.5 * a * a) / _SQRT_2PI
-    pb = np.exp(-0.5 * b * b) / _SQRT_2PI
-    m1 = (pa - pb) / z
-    m2 = 1.0 + (a * pa - b * pb) / z
-    m3 = 2.0 * m1 + (a * a * pa - b * b * pb) / z
-    m4 = 3.0 * m2 + (a ** 3 * pa - b ** 3 * pb) / z
-    c2 = np.maximum(m2 - m1 * m1, 1e-300)
-    c3 = m3 - 3.0 * m1 * m2 + 2.0 * m1 ** 3
-    c4 = m4 - 4.0 * m1 * m3 + 6.0 * m1 * m1 * m2 - 3.0 * m1 ** 4
-    return m1, c2, c3, c4, m3
-
-
-def truncnorm_moments(m, s):
-    """Mean and variance of N(m, s^2) truncated to [-pi/2, pi/2]."""
-    m = np.asarray(m, float)
-    s = np.asarray(s, float)
-    a, b = (-HALF_PI - m) / s, (HALF_PI - m) / s
-    z = truncnorm_mass(m, s)
-    pa = np.exp(-0.5 * a * a) / _SQRT_2PI
-    pb = np.exp(-0.5 * b * b) / _SQRT_2PI
-    r = (pa - pb) / z
-    mean = m + s * r
-    var = s * s * (1.0 + (a * pa - b * pb) / z - r * r)
-    return mean, np.maximum(var, 1e-300)
-
-
 # --- lobes per view -----------------------------------------------------------------------------
 
 @dataclass
@@ -140,18 +110,6 @@ class LobeTable:
 
 
 # --- BRDFs ----------------------------------------------------------------------------------------
-
-def _hermite_energy(t, alpha_b, theta0, theta1, alpha1, m1):
-    """Sec. 3.4 energy curve, per channel: (n, 3). Same definition as fits.energy_curve."""
-    t = np.asarray(t, float)[:, None]
-    span = max(theta1 - theta0, 1e-9)
-    s = np.clip((t - theta0) / span, 0.0, 1.0)
-    after = t > theta1
-    h00 = np.where(after, 0.0, 2 * s ** 3 - 3 * s ** 2 + 1)
-    h01 = np.where(after, 1.0, -2 * s ** 3 + 3 * s ** 2)
-    h11 = np.where(after, t - theta1, (s ** 3 - s ** 2) * span)
-    return h00 * np.asarray(alpha_b) + h01 * np.asarray(alpha1) + h11 * np.asarray(m1)
-
 
 def _rgb(v):
     return tuple(float(x) for x in np.broadcast_to(np.asarray(v, float), (3,)))
@@ -196,7 +154,7 @@ class MomentParams:
         pick = [ch.get(c, {}) for c in "rgb"]
         return cls(tuple(p.get("alpha_b", 0.0) for p in pick), tuple(p.get("alpha1", 0.0) for p in pick),
                    tuple(p.get("m1", 0.0) for p in pick), float(fit["theta0"]), float(fit["theta1"]),
-                   float(fit["mu_slope"]), float(np.clip(fit["sigma2"], 1e-7, LAMBERT_VARIANCE)), kd)
+                   float(fit["mu_slope"]), float(np.clip(fit["sigma2"], MIN_SIGMA2, LAMBERT_VARIANCE)), kd)
 
     def edited(self, strength=1.0, colour=(1.0, 1.0, 1.0), grazing_boost=1.0, mu_slope=None,
                sigma2=None) -> "MomentParams":
@@ -212,7 +170,7 @@ class MomentParams:
 
     def energy(self, theta_o):
         """alpha per channel at the views, (n, 3); never negative."""
-        a = _hermite_energy(theta_o, self.alpha_b, self.theta0, self.theta1, self.alpha1, self.m1)
+        a = energy_curve(theta_o, self.alpha_b, self.theta0, self.theta1, self.alpha1, self.m1)
         return np.maximum(a, 0.0)
 
     def content_key(self) -> str:
@@ -401,16 +359,3 @@ class HalfVectorSampler:
         i = np.clip((np.sqrt(th / HALF_PI) * self.n).astype(np.int64), 0, self.n - 1)
         p_h = self.p[self._row(theta_o), i] / self.ring[i]
         return np.where(dot > 0, p_h / (4.0 * np.maximum(dot, 1e-300)), 0.0) * cp
-
-
-def make_brdf(source, profiles=None):
-    """A BRDF object from a MerlTable, a MomentParams, or an object that already is one."""
-    from ..merl import MerlTable
-
-    if isinstance(source, (ModelBRDF, TableBRDF)):
-        return source
-    if isinstance(source, MomentParams):
-        return ModelBRDF(source)
-    if isinstance(source, MerlTable):
-        return TableBRDF(source, profiles)
-    raise TypeError(f"cannot preview a {type(source).__name__}: give a MerlTable or MomentParams")

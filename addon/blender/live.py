@@ -1,9 +1,8 @@
 """The preview image in the panel, and its live update while a slider moves (SPEC §4).
 
-A slider move (after a short debounce) starts a worker thread: the synthesis of the
-edit (``fast_edit``), then a quarter-resolution bake of the edited sphere, written into the
-edited half of the preview image; then the full-resolution bake of the same table replaces
-it. A newer slider move makes the worker drop what it was doing. Apply makes the same edit and
+A slider move (after a short debounce) starts a worker thread running ``core.render.live.work``:
+a draft synthesis of the edit and a quarter-resolution bake of it, written into the edited half
+of the preview image; then the full synthesis and its full-resolution bake replace it. A newer slider move makes the worker drop what it was doing. Apply makes the same edit and
 re-measures it, and Build Preview shows that.
 
 Headless (``blender -b``, the bpy module) there is no event loop for timers:
@@ -12,43 +11,20 @@ Headless (``blender -b``, the bpy module) there is no event loop for timers:
 
 from __future__ import annotations
 
-import os
 import threading
 import time
 
 import bpy
 import numpy as np
 
-FINAL_SAMPLES = 128        # Build Preview's bake: within 5 % per pixel on the near-mirror (BENCHMARKS.md)
-LIVE_DIAMETER_DIV = 4      # the first live image: a quarter of the sphere's resolution
-LIVE_SAMPLES = 16
+from ..core.render.live import source_table, work
+
 DEBOUNCE = 0.1             # seconds of quiet after a slider move before the work starts
 POLL = 0.05
 
 
 def preview_image_name(mat):
     return f"BRDF Moments preview: {mat.name}"
-
-
-def fast_edit(table, targets, prof, fit, draft=False, region=None):
-    """The edit's synthesis, not re-measured: what a slider drag can afford (``draft``: the
-    quick, rougher solve shown first)."""
-    from .core.edit import edit
-
-    return edit(table, targets, prof, fit, remeasure=False, draft=draft, region=region).table
-
-
-_REGIONS = {}     # the reachable region of the material being dragged (computed once, not per move)
-
-
-def _region(prof, fit, mode):
-    from .core.edit.reach import reachable_region
-
-    key = (id(prof), fit.get("mu_slope"), fit.get("sigma2"), mode)
-    if key not in _REGIONS:
-        _REGIONS.clear()
-        _REGIONS[key] = reachable_region(prof, fit, mode=mode)
-    return _REGIONS[key]
 
 
 def upsample(tile, d):
@@ -104,7 +80,7 @@ def read_preview_image(mat):
 
 def replace_sphere(mat, k, rgb, cov, label):
     """Sphere ``k`` of the preview image replaced by a (D, D) bake; the other sphere is kept."""
-    from .core.render import sphere_layout
+    from ..core.render import sphere_layout
 
     rgba = read_preview_image(mat)
     if rgba is None:
@@ -122,24 +98,10 @@ def replace_sphere(mat, k, rgb, cov, label):
 
 # --- the work ----------------------------------------------------------------------------------
 
-_TABLES = {}      # (path, mtime, size) -> MerlTable: the source stays in memory between drags
-
-
-def _table(path):
-    from .core.nbrdf import read_table, source_file
-
-    st = os.stat(source_file(path))  # a MERL file, or the FILE of FILE:NAME (a network)
-    key = (path, st.st_mtime_ns, st.st_size)
-    if key not in _TABLES:
-        _TABLES.clear()
-        _TABLES[key] = read_table(path)
-    return _TABLES[key]
-
-
 def _job(mat):
     """What the worker needs, read on the main thread; None when there is no live preview."""
-    from .core.nbrdf import source_exists
-    from .core.render import sphere_layout
+    from ..core.nbrdf import source_exists
+    from ..core.render import sphere_layout
     from .preview import load_environment, resolve_environment
 
     state = mat.brdf_moments
@@ -155,26 +117,7 @@ def _job(mat):
 
 
 def _work(job, stale=lambda: False, post=lambda stage, rgb, cov: None):
-    from .core.render import TableBRDF, bake_sphere
-
-    table = _table(job["source"])
-    targets, prof, fit = job["targets"], job["prof"], job["fit"]
-    region = _region(prof, fit, targets.mode)
-    # First a draft synthesis at a quarter of the resolution (what a drag can show within about
-    # a second), then the full synthesis at full resolution: the table Apply writes.
-    new = fast_edit(table, targets, prof, fit, draft=True, region=region)
-    if stale():
-        return
-    d = job["d"]
-    rgb, cov = bake_sphere(TableBRDF(new, prof), job["env"], max(d // LIVE_DIAMETER_DIV, 8), LIVE_SAMPLES, 0)
-    post("live", rgb, cov)
-    if stale():
-        return
-    new = fast_edit(table, targets, prof, fit, region=region)
-    if stale():
-        return
-    rgb, cov = bake_sphere(TableBRDF(new, prof), job["env"], d, FINAL_SAMPLES, 0)
-    post("refined", rgb, cov)
+    work(source_table(job["source"]), job["targets"], job["prof"], job["fit"], job["env"], job["d"], stale, post)
 
 
 def update_now(mat, refine=False):

@@ -6,10 +6,10 @@ Sections:
   tables   tabulated samples against the converged adaptive reference, for the cached
            operator (all 90 views timed), Monte Carlo and the uniform grid;
   memory   peak resident memory of one material's analysis, in a fresh process.
-  preview  Cycles preview render time against error, both paths (addon/bench_preview.py).
-  measured the 59 measured materials through analyze, both diffuse floors (addon/bench_measured.py).
+  preview  Cycles preview render time against error, both paths (addon/tools/bench_preview.py).
+  measured the 59 measured materials through analyze, both diffuse floors (addon/tools/bench_measured.py).
   artist   what the artist sees: every preview mode, the live preview and its latency, the
-           Principled approximation of the artist's material (addon/bench_artist.py).
+           Principled approximation of the artist's material (addon/tools/bench_artist.py).
 
 Times are medians over repeats in this one run; the machine is shared, so compare ratios.
 """
@@ -82,8 +82,8 @@ def truncated_gaussian(mean_theta, sigma):
 
 
 def bench_closed(quick):
-    from .core.integrate import grid_sums
-    from .core.profiles import _stats, function_profiles, monte_carlo_profiles
+    from ..core.integrate import grid_sums
+    from ..core.profiles import _stats, function_profiles, monte_carlo_profiles
 
     sigmas = (0.5, 0.1, 0.02, 0.005)
     views = np.radians([0.0, 30.0, 60.0, 85.0])
@@ -126,8 +126,8 @@ REF_VIEWS_DEG = (0.0, 30.0, 60.0, 80.0, 89.0)
 
 def reference_profiles(table_values, views, cache_dir, tag):
     """Converged reference, cached on disk by content (it takes minutes)."""
-    from .core.integrate import reference_sums
-    from .core.moments import profiles_from_sums
+    from ..core.integrate import reference_sums
+    from ..core.moments import profiles_from_sums
 
     h = hashlib.sha256(np.ascontiguousarray(table_values).tobytes())
     h.update(np.asarray(views, "<f8").tobytes())
@@ -147,9 +147,9 @@ def bench_trilinear(quick):
     the usual mask), against the nearest-cell reading, per material (90 views, 15 moments,
     4 channel sets); the operator's cold build is timed when this run makes it."""
     import samples
-    from .core.integrate import default_cache_dir
-    from .core.merl import read_merl
-    from .core.profiles import compute_profiles
+    from ..core.integrate import default_cache_dir
+    from ..core.merl import read_merl
+    from ..core.profiles import compute_profiles
 
     names = ("ggx_glossy", "ggx_mirror") if quick else ("lambertian", "ggx_mirror", "ggx_glossy", "ggx_rough",
                                                        "gold", "rgl/satin_gold", "nielsen/greencloth")
@@ -187,10 +187,10 @@ def bench_trilinear(quick):
 
 def bench_tables(quick, names=None):
     import samples
-    from .core.integrate import default_cache_dir, default_views, grid_sums, table_slice_evaluator
-    from .core.merl import read_merl
-    from .core.profiles import _stats, compute_profiles, diffuse_floor, monte_carlo_profiles, specular_values
-    from .core.quadrature import RuleParams
+    from ..core.integrate import default_cache_dir, default_views, grid_sums, table_slice_evaluator
+    from ..core.merl import read_merl
+    from ..core.profiles import _stats, compute_profiles, diffuse_floor, monte_carlo_profiles, specular_values
+    from ..core.quadrature import RuleParams
 
     names = names or (("lambertian", "ggx_mirror", "ggx_rough") if quick else
                       ("lambertian", "phong", "ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "red_plastic"))
@@ -234,7 +234,7 @@ def bench_tables(quick, names=None):
         e = np.max([_errors({k: g[k][:, i] for k in ref_at(i)}, ref_at(i)) for i in range(4)], axis=0)
         rows.append((name, "uniform grid 256²", t, e))
     out = ["### Tabulated samples against the converged reference", "",
-           f"Specular part (kd split on; off for the Lambertian), all four channel sets (r, g, b, avg); errors are the worst over",
+           "Specular part (kd split on; off for the Lambertian), all four channel sets (r, g, b, avg); errors are the worst over",
            f"channels at θo = {', '.join(f'{v:g}°' for v in REF_VIEWS_DEG)} against the adaptive reference",
            "(`integrate.reference_sums`). Time is for a whole material: 90 views, 15 moments, 4 channel",
            "sets (Monte Carlo and grid timed on the reference views and scaled to 90).", "",
@@ -271,7 +271,7 @@ print(hwm(), base, time.perf_counter() - t)
 def bench_memory():
     import tempfile
 
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     script = _MEM_SCRIPT.format(root=root)
     out = ["### Peak memory and the slice-operator cache", "",
            "One material (ggx_glossy, 90 views, order 4) analysed in a fresh Python process; peak",
@@ -290,7 +290,7 @@ def bench_memory():
 
 def _seal_cost(cache):
     """What checking the operator's seal (size and CRC-32 of every file) costs once per process."""
-    from .core import integrate
+    from ..core import integrate
 
     views = integrate.default_views()
     folder = os.path.join(cache, integrate._OPERATOR_PREFIX + integrate._operator_key(views, integrate.RuleParams()))
@@ -309,9 +309,9 @@ def bench_fits(quick):
 
     import samples
     from .analyze import analyze
-    from .core.fits import fit_material
-    from .core.merl import read_merl, tabulate, write_merl
-    from .core.profiles import compute_profiles
+    from ..core.fits import fit_material
+    from ..core.merl import read_merl, tabulate, write_merl
+    from ..core.profiles import compute_profiles
 
     names = ("ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "phong", "red_plastic")
     times = []
@@ -321,7 +321,7 @@ def bench_fits(quick):
         times.append(t)
     n = 20 if quick else 100
     out = ["### Fits and whole-set analysis", "",
-           f"`fit_material` (energy spline with knot search, mean slope, variance, per-channel colour) on",
+           "`fit_material` (energy spline with knot search, mean slope, variance, per-channel colour) on",
            f"{len(names)} samples: median {np.median(times) * 1e3:.0f} ms per material "
            f"(range {min(times) * 1e3:.0f}–{max(times) * 1e3:.0f} ms).", ""]
     folder = tempfile.mkdtemp(prefix="brdf-bench-set-")
@@ -354,10 +354,10 @@ def _witnesses(table, prof, fit, mode, dmu, k):
     re-measured fit at gain 1, and again after the edit's energy passes (each view's gain set by
     its own error), which is a table showing all three sliders' values at once. Each comes with
     the largest energy error up to ENERGY_VIEWS."""
-    from .core.edit.legacy import (ENERGY_PASSES, ENERGY_VIEWS, GAIN_RANGE, EditTargets, _energy_ratio, synthesize,
+    from ..core.edit.legacy import (ENERGY_PASSES, ENERGY_VIEWS, GAIN_RANGE, EditTargets, _energy_ratio, synthesize,
                             target_energy, view_goals)
-    from .core.fits import fit_material
-    from .core.profiles import compute_profiles
+    from ..core.fits import fit_material
+    from ..core.profiles import compute_profiles
 
     want = target_energy(prof, fit, EditTargets(mode=mode))
     views = np.asarray(prof.theta_o) <= ENERGY_VIEWS + 1e-9
@@ -383,10 +383,10 @@ def bench_edit_legacy(quick):
     of a table that one synthesis actually produced, so they are reachable by construction:
     a miss there is the solver's fault, not the target's."""
     import samples
-    from .core.edit.legacy import ENERGY_TOLERANCE, EditTargets, _pair_geometry, edit, synthesize, target_energy
-    from .core.fits import fit_material
-    from .core.merl import read_merl
-    from .core.profiles import compute_profiles
+    from ..core.edit.legacy import ENERGY_TOLERANCE, EditTargets, _pair_geometry, edit, synthesize, target_energy
+    from ..core.fits import fit_material
+    from ..core.merl import read_merl
+    from ..core.profiles import compute_profiles
 
     t0 = time.perf_counter()
     _pair_geometry()
@@ -458,7 +458,7 @@ def bench_edit_legacy(quick):
                         row(name, mode, (f["mu_slope"], f["sigma2"]), "", res, t_edit, n, prof, fit, tg))
     n_ok = lambda rows: sum(r.endswith("| OK |") for r in rows)  # noqa: E731
     return (["### Editing: re-synthesis time and the moments reached", "",
-             f"One synthesis = one full 90x90x180 table, both orientations combined (the per-cell pair",
+             "One synthesis = one full 90x90x180 table, both orientations combined (the per-cell pair",
              f"geometry is cached once per process: {t_geo:.1f} s). A full edit adds correction rounds",
              "(tabulate, re-measure, step; 10, and up to 6 more while they close in) for the reciprocal",
              "combination and the clipping.",
@@ -496,7 +496,7 @@ EDIT_FIGURES = ("energy", "variance_median", "variance_worst", "mean", "shape")
 
 def _edit_requests(fit, region):
     """The bench's edits: (label, EditTargets). The mean-slope moves are kept inside the region."""
-    from .core.edit import EditTargets
+    from ..core.edit import EditTargets
 
     s2, mu = fit["sigma2"], fit["mu_slope"]
     out = [("σ̃² ×0.5", EditTargets(sigma2=s2 * 0.5)), ("σ̃² ×2", EditTargets(sigma2=min(s2 * 2.0, np.pi ** 2 / 12))),
@@ -525,13 +525,13 @@ def bench_edit(quick):
     skewness/kurtosis change up to 60 deg; views whose target is out of reach are listed as a
     share, not counted. Times: the synthesis, and the whole Apply (synthesis + re-measure)."""
     import samples
-    from .core.edit import edit, legacy
-    from .core.edit.fidelity import TOLERANCES, measure
-    from .core.edit.reach import reachable_region
-    from .core.edit.targets import resolve_targets, view_targets
-    from .core.fits import fit_material
-    from .core.merl import read_merl
-    from .core.profiles import compute_profiles
+    from ..core.edit import edit, legacy
+    from ..core.edit.fidelity import TOLERANCES, measure
+    from ..core.edit.reach import reachable_region
+    from ..core.edit.targets import resolve_targets, view_targets
+    from ..core.fits import fit_material
+    from ..core.merl import read_merl
+    from ..core.profiles import compute_profiles
 
     analytic = [n for n in samples.CATALOG if n != "lambertian"]
     measured = [(kind, n) for kind, names in EDIT_MEASURED.items() for n in names]

@@ -10,11 +10,13 @@ import math
 import bpy
 import numpy as np
 
-from .core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE
-from .core.moments import CHANNELS, PROFILE_KEYS
+from ..core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
+from ..core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE
+from ..core.moments import CHANNELS, PROFILE_KEYS
 
 MU_MIN, MU_MAX = -2.0, 0.0
-SIGMA2_MIN, SIGMA2_MAX = 1e-8, math.pi ** 2 / 12
+# The slider reaches below the model's floor (MIN_SIGMA2): the edit clamps it and says so.
+SIGMA2_MIN, SIGMA2_MAX = 1e-8, LAMBERT_VARIANCE
 
 
 def clamp_mu(v):
@@ -32,7 +34,7 @@ def pack_profiles(prof) -> str:
 
 
 def unpack_profiles(text: str):
-    from .core.profiles import Profiles
+    from ..core.profiles import Profiles
 
     # Stored in the .blend, so it may be damaged or edited: checked before anything uses it.
     try:
@@ -165,7 +167,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         """The Principled BSDF fitted to the last edited table, or None."""
         import json
 
-        from .core.principled import PrincipledFit
+        from ..core.principled import PrincipledFit
 
         if not self.principled_data:
             return None
@@ -193,15 +195,15 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def model_params(self, edited=False):
         """The moment model (paper Eq. 7) of the fits, or of the fits moved by the sliders."""
-        from .core.fits import correlation_curve
-        from .core.render import MomentParams
+        from ..core.fits import correlation_curve
+        from ..core.render import MomentParams
 
         params = MomentParams.from_fit(self.fit(), tuple(self.kd))
         if not edited:
             return params
         s2 = float(correlation_curve(self.mu_slope, self.correlation_a)) if self.lock else self.sigma2
         return params.edited(self.strength, tuple(self.colour), self.grazing_boost, self.mu_slope,
-                             min(max(s2, 1e-7), math.pi ** 2 / 12))
+                             min(max(s2, MIN_SIGMA2), LAMBERT_VARIANCE))
 
     def reset_sliders(self):
         self.strength, self.colour, self.grazing_boost = 1.0, (1.0, 1.0, 1.0), 1.0
@@ -213,7 +215,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         """The reachable region for the current mode, or None (not analysed, no lobe, damaged)."""
         import json
 
-        from .core.edit.reach import ReachableRegion
+        from ..core.edit.reach import ReachableRegion
 
         try:
             data = json.loads(self.region_data) if self.region_data else {}
@@ -224,7 +226,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     def requested_point(self):
         """((mu, sigma2) the sliders ask for, (mu, sigma2) Apply will use) or None: the region's
         clamp, as ``edit`` does it, so the panel says so before Apply."""
-        from .core.edit.targets import resolve_targets
+        from ..core.edit.targets import resolve_targets
 
         region = self.region()
         if region is None:
@@ -241,7 +243,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def slider_targets(self):
         """The sliders as engine targets; a slider still at its fitted value stays exact."""
-        from .core.edit import EditTargets
+        from ..core.edit import EditTargets
 
         at_fit_mu = abs(self.mu_slope - clamp_mu(self.fit_mu_slope)) < 1e-6
         at_fit_s2 = abs(self.sigma2 - clamp_sigma2(self.fit_sigma2)) <= 1e-7 * max(self.fit_sigma2, 1e-6)

@@ -27,18 +27,19 @@ def bench_artist(quick=False):
     import samples
 
     from .bench_preview import _environment, _read_exr, ground_truth
-    from .core.fits import fit_material
-    from .core.merl import read_merl
-    from .core.principled import fit_principled
-    from .core.profiles import compute_profiles
-    from .core.render import MomentParams, TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
-    from .live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, upsample
-    from .wheel import import_bpy
+    from ..core.fits import fit_material
+    from ..core.merl import read_merl
+    from ..core.principled import fit_principled
+    from ..core.profiles import compute_profiles
+    from ..core.render import MomentParams, TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
+    from ..blender.live import upsample
+    from ..core.render.live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES
+    from ..wheel import import_bpy
 
     bpy = import_bpy()
-    from . import material as artist
-    from .preview import build_preview, render_still
-    from .preview import scene as sc
+    from ..blender import material as artist
+    from ..blender.preview import build_preview, render_still
+    from ..blender.preview import scene as sc
 
     env, env_path = _environment(bpy)
     layout = sphere_layout(SIZE, SIZE, 1)
@@ -136,16 +137,17 @@ def bench_live(quick=False):
     """``bench --only live``: slider move to the live preview's first image (the draft synthesis,
     the engine's table BRDF, the quarter-size bake), then to the refined image (the full
     synthesis, the full-size bake); the image write and the panel redraw are not included.
-    Engine only (no bpy): the same work the panel's worker thread does (``live._work``)."""
+    Engine only (no bpy): the same work the panel's worker thread does (``core.render.live.work``),
+    step by step to time each."""
     import samples
 
-    from .core.edit import EditTargets
-    from .core.edit.reach import reachable_region
-    from .core.fits import fit_material
-    from .core.merl import read_merl
-    from .core.profiles import compute_profiles
-    from .core.render import Environment, TableBRDF, bake_sphere
-    from .live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
+    from ..core.edit import EditTargets
+    from ..core.edit.reach import reachable_region
+    from ..core.fits import fit_material
+    from ..core.merl import read_merl
+    from ..core.profiles import compute_profiles
+    from ..core.render import Environment, TableBRDF, bake_sphere
+    from ..core.render.live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
 
     d = 115                                      # one sphere of the 256-wide preview
     d0 = max(d // LIVE_DIAMETER_DIV, 8)
@@ -187,7 +189,7 @@ def bench_live(quick=False):
 
 
 def _tmp_dir():
-    from .core.integrate import default_cache_dir
+    from ..core.integrate import default_cache_dir
 
     path = os.path.join(default_cache_dir(), "preview")
     os.makedirs(path, exist_ok=True)

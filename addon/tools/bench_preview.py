@@ -28,7 +28,7 @@ EDIT = dict(sigma2_scale=2.0, strength=0.8)
 
 
 def _cache_dir():
-    from .core.integrate import default_cache_dir
+    from ..core.integrate import default_cache_dir
 
     path = os.path.join(default_cache_dir(), "preview")
     os.makedirs(path, exist_ok=True)
@@ -51,11 +51,11 @@ def _source_hash(*modules):
 
 def edited_table(table, name):
     """The demo's model-mode edit of ``table`` (cached as a MERL file by content and code)."""
-    from .core import edit as edit_mod
-    from .core.edit import EditTargets, edit
-    from .core.fits import fit_material
-    from .core.merl import read_merl, write_merl
-    from .core.profiles import compute_profiles
+    from ..core import edit as edit_mod
+    from ..core.edit import EditTargets, edit
+    from ..core.fits import fit_material
+    from ..core.merl import read_merl, write_merl
+    from ..core.profiles import compute_profiles
 
     h = hashlib.sha256(np.ascontiguousarray(table.rho).tobytes())
     h.update(repr(sorted(EDIT.items())).encode() + _source_hash(edit_mod).encode())
@@ -72,14 +72,14 @@ def edited_table(table, name):
 
 def _environment(bpy):
     if bpy is not None:
-        from .preview import load_environment, resolve_environment
+        from ..blender.preview import load_environment, resolve_environment
 
         path = resolve_environment(ENV)
         return load_environment(path), path
     import glob
 
     import OpenEXR
-    from .core.render import Environment
+    from ..core.render import Environment
 
     hits = glob.glob(os.path.join(os.path.dirname(np.__file__), "..", "bpy", "*", "datafiles", "studiolights",
                                   "world", f"{ENV}.exr"))
@@ -93,7 +93,7 @@ def reference_version():
     to the bake must not throw away four-minute ground truths)."""
     import inspect
 
-    from .core.render import envmap, estimators, lobe, scene
+    from ..core.render import envmap, estimators, lobe, scene
 
     h = hashlib.sha256(b"reference")
     for fn in (estimators.render_reference, estimators.reference_sphere, estimators._to_world,
@@ -105,7 +105,7 @@ def reference_version():
 
 def ground_truth(layout, brdfs, env, tag, spp=GT_SPP):
     """(image, estimated relative RMSE of its own noise, seconds spent or 0 if cached)."""
-    from .core.render import render_reference, relative_rmse
+    from ..core.render import render_reference, relative_rmse
 
     h = hashlib.sha256(f"gt:{spp}:{layout}:{reference_version()}".encode())
     for b in brdfs:
@@ -147,15 +147,15 @@ def _read_exr(bpy, path):
 
 def bench_preview(quick=False):
     import samples
-    from .core.merl import read_merl
-    from .core.render import (BakeCache, ModelBRDF, TableBRDF, normalized_rmse, relative_rmse, render_baked,
+    from ..core.merl import read_merl
+    from ..core.render import (BakeCache, ModelBRDF, TableBRDF, normalized_rmse, relative_rmse, render_baked,
                               render_reference, sphere_layout)
 
     try:
-        from .wheel import import_bpy
+        from ..wheel import import_bpy
 
         bpy = import_bpy()
-        from .preview import build_preview, render_still
+        from ..blender.preview import build_preview, render_still
     except ImportError:
         bpy = None
     env, env_path = _environment(bpy)
@@ -199,7 +199,7 @@ def bench_preview(quick=False):
                 rows.append((name, "baked (numpy only, no bpy)", f"{k}+{k} samples/texel", took, e))
                 baked.append((k, took, e))
                 continue
-            from .preview import build as build_mod
+            from ..blender.preview import build as build_mod
 
             def fresh_scene():
                 # A new empty scene each time: the preview skips images whose bake is current,
@@ -235,7 +235,7 @@ def bench_preview(quick=False):
                                 "missed |")
         if bpy is None:
             continue
-        from .preview import model_params
+        from ..blender.preview import model_params
 
         model_gt = None
         for mode in ("tabulated", "model"):

@@ -12,8 +12,8 @@ import time
 
 def _preflight(args, input_error):
     """Checks that need no Blender: the output's name and the guard against the inputs."""
-    from .core.nbrdf import parse_source
-    from .core.safeio import guard_output
+    from ..core.nbrdf import parse_source
+    from ..core.safeio import guard_output
 
     out = os.fspath(args.out)
     if os.path.splitext(out)[1].lower() not in (".png", ".exr"):
@@ -36,10 +36,10 @@ def run_in_child(args, input_error):
     import sys
     import tempfile
 
-    from .core.atomic import sweep_pending
+    from ..core.atomic import sweep_pending
 
     _preflight(args, input_error)
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     scratch = tempfile.mkdtemp(prefix="brdfm-render-")  # Blender's temporary folder, removed below
     env = dict(os.environ, BRDF_MOMENTS_RENDER_CHILD="1", TMPDIR=scratch, TEMP=scratch, TMP=scratch,
                PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))
@@ -65,7 +65,7 @@ def run_in_child(args, input_error):
 def run(args, input_error):
     import signal
 
-    from .core.nbrdf import read_table
+    from ..core.nbrdf import read_table
 
     if os.environ.get("BRDF_MOMENTS_RENDER_CHILD") == "1":
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
@@ -74,12 +74,12 @@ def run(args, input_error):
     edited = read_table(args.edited) if args.edited else None
     t0 = time.perf_counter()
     try:
-        from .wheel import import_bpy
+        from ..wheel import import_bpy
 
         bpy = import_bpy()
     except ImportError as exc:
         raise input_error(str(exc)) from None
-    from . import preview
+    from ..blender import preview
 
     try:
         env = preview.resolve_environment(args.env)

@@ -73,7 +73,7 @@ def _in_child(work, conn):
             last = (done, total)
             conn.send(("progress", done, total))
 
-    from .core.safeio import run_scope
+    from ..core.safeio import run_scope
 
     try:
         with run_scope():  # the inputs this job reads are what its writes may not replace
@@ -167,7 +167,7 @@ class BackgroundJob:
         return {"FINISHED"}
 
     def execute(self, context):
-        from .core.safeio import run_scope
+        from ..core.safeio import run_scope
 
         work = self._prepare(context)
         if work is None:
@@ -202,7 +202,7 @@ class BackgroundJob:
             state["done"], state["total"] = done, max(total, 1)
 
         def run():
-            from .core.safeio import run_scope
+            from ..core.safeio import run_scope
 
             try:
                 with run_scope():

@@ -16,11 +16,6 @@ def node_tree(idblock):
     return idblock.node_tree
 
 
-def eevee_engine() -> str:
-    """EEVEE's engine name: ``BLENDER_EEVEE`` before 4.2 and from 5.0, ``BLENDER_EEVEE_NEXT`` between."""
-    return "BLENDER_EEVEE_NEXT" if (4, 2) <= VERSION < (5, 0) else "BLENDER_EEVEE"
-
-
 def fix_sampling_pattern(cycles) -> str:
     """Cycles' sampling pattern, set explicitly: its default ('Automatic') is blue noise in
     some versions and Sobol in others, which moves the noise (and edge pixels) between

@@ -6,26 +6,17 @@ import csv
 import io
 import math
 import os
-import sys
 import time
 
 import numpy as np
 
-
-def material_name(path) -> str:
-    from .core.nbrdf import parse_source
-
-    path, name = parse_source(os.fspath(path))
-    if name:  # FILE:NAME, a material of a Neural-BRDF weights set
-        return name
-    base = os.path.basename(os.fspath(path))
-    return base[: -len(".binary")] if base.endswith(".binary") else os.path.splitext(base)[0]
+from ..core.names import distinct_name, material_name
 
 
 def _weights_specs(item, problems):
     """A Neural-BRDF weights source with no material chosen: all of its materials, FILE:NAME."""
-    from .core.merl import MerlError
-    from .core.nbrdf import list_materials
+    from ..core.merl import MerlError
+    from ..core.nbrdf import list_materials
 
     try:
         return [f"{item}:{name}" for name in list_materials(item)]
@@ -36,7 +27,7 @@ def _weights_specs(item, problems):
 
 def _qualify(paths):
     """Names per input; materials of different weights sets that share a name get the set's stem."""
-    from .core.nbrdf import parse_source
+    from ..core.nbrdf import parse_source
 
     names = [material_name(p) for p in paths]
     count = {}
@@ -58,7 +49,7 @@ def input_names(paths):
 
 def collect_inputs(items):
     """Expand folders to their .binary files, weights sets to their materials; (paths, problems)."""
-    from .core.nbrdf import is_weights_source, parse_source
+    from ..core.nbrdf import is_weights_source, parse_source
 
     paths, problems = [], []
     for item in items:
@@ -86,8 +77,8 @@ def collect_inputs(items):
     for name, ps in names.items():
         if len(ps) > 1:
             problems.append(f"{ps[1]}: material name '{name}' is used by another input too ({ps[0]})")
-    from .core.limits import MAX_INPUTS
-    from .core.names import collisions
+    from ..core.limits import MAX_INPUTS
+    from ..core.names import collisions
 
     for a, b in collisions(list(names)):
         problems.append(f"{names[b][0]}: material '{b}' would share its output file with '{a}' on a "
@@ -100,13 +91,13 @@ def collect_inputs(items):
 
 def load_profiles(path, views=None, name=None, floor="min"):
     """Profiles of a material source (MERL file, FILE:NAME of weights), or a profiles JSON."""
-    from .core.nbrdf import read_table
-    from .core.profiles import Profiles, compute_profiles
+    from ..core.nbrdf import read_table
+    from ..core.profiles import Profiles, compute_profiles
 
     if str(path).endswith(".json"):
-        from .core.limits import MAX_PROFILES_JSON_BYTES
-        from .core.merl import MerlError
-        from .core.safeio import UnsafePath, load_json
+        from ..core.limits import MAX_PROFILES_JSON_BYTES
+        from ..core.merl import MerlError
+        from ..core.safeio import UnsafePath, load_json
 
         try:
             data = load_json(path, MAX_PROFILES_JSON_BYTES, "profiles JSON")
@@ -123,8 +114,8 @@ def load_profiles(path, views=None, name=None, floor="min"):
 
 
 def _work(path, floor="min"):
-    from .core.fits import fit_material
-    from .core.merl import MerlError
+    from ..core.fits import fit_material
+    from ..core.merl import MerlError
 
     t = time.perf_counter()
     try:
@@ -147,7 +138,7 @@ def run_parallel(paths, workers=None, progress=None, floor="min"):
     """(path, profiles_json, fit, error, seconds) per input, in input order."""
     import functools
 
-    from .core.integrate import default_views, get_operator
+    from ..core.integrate import default_views, get_operator
 
     get_operator(default_views())  # build or load once, before forking: children share it
     workers = workers or os.cpu_count() or 1
@@ -192,18 +183,10 @@ def summary_rows(profiles, fits):
 
 
 def write_text_atomic(text, path):
-    from .core.atomic import atomic_path
+    from ..core.atomic import atomic_path
 
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         fh.write(text)
-
-
-def safe_output_name(name: str) -> str:
-    """A material name as a file name that cannot leave the output folder, distinct for
-    distinct names (``names.distinct_name``: ``a b`` and ``a_b`` get different files)."""
-    from .core.names import distinct_name
-
-    return distinct_name(name)
 
 
 def _plot_group(args):
@@ -234,9 +217,8 @@ def _plot_all(profiles, fits, out_dir, workers):
 def _publish(out_dir, inputs, docs, fits, summary, profiles, workers):
     """Write every result into a staging folder inside ``out_dir``, then move each into place:
     an error or Ctrl-C before the moves leaves nothing (the staging folder is removed)."""
-    from .cli import write_json_atomic
-    from .core.atomic import temp_folder
-    from .core.safeio import guard_output
+    from ..core.atomic import temp_folder, write_json_atomic
+    from ..core.safeio import guard_output
 
     finals = list(docs) + ["fits.json", "summary.csv"]
     if profiles is not None:
@@ -264,8 +246,8 @@ def _publish(out_dir, inputs, docs, fits, summary, profiles, workers):
 
 def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, floor="min"):
     """Profiles, fits, per-material JSON, summary CSV and plots for a set. Returns problems."""
-    from .core.fits import fit_set
-    from .core.profiles import Profiles
+    from ..core.fits import fit_set
+    from ..core.profiles import Profiles
 
     paths, problems = collect_inputs(items)
     bad_names = {p.split(":")[0] for p in problems}
@@ -284,7 +266,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, 
         profiles[name] = Profiles.from_json(pj, name=name)
         per_fit[name] = fit
         seconds.append(sec)
-        docs[os.path.join("materials", safe_output_name(name) + ".json")] = \
+        docs[os.path.join("materials", distinct_name(name) + ".json")] = \
             {"material": name, "source": os.path.abspath(path), "profiles": pj, "fit": fit}
     if not profiles:
         return problems
@@ -294,7 +276,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, 
     writer.writeheader()
     for row in summary_rows(profiles, fits["materials"]):
         writer.writerow({k: ("" if v is None else (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()})
-    from .core.nbrdf import parse_source
+    from ..core.nbrdf import parse_source
 
     inputs = [parse_source(p)[0] for p in paths]  # FILE:NAME reads FILE: that is the input to guard
     _publish(out_dir, inputs, docs, fits, buf.getvalue(), profiles if plots else None, workers)

@@ -13,8 +13,8 @@ import bpy
 import numpy as np
 
 from ..compat import node_tree
-from ..core.merl import MerlTable, read_merl
-from ..core.render import BakeCache, MomentParams, ModelBRDF, TableBRDF, bake_key, sphere_layout
+from ...core.merl import MerlTable, read_merl
+from ...core.render import BakeCache, MomentParams, ModelBRDF, TableBRDF, bake_key, sphere_layout
 from . import osl as osl_path
 from . import scene as sc
 from .environment import load_environment, resolve_environment
@@ -84,7 +84,7 @@ def model_params(source, profiles=None) -> MomentParams:
     """The moment model of a source: as given, or fitted to a table (Sec. 3.4 fits)."""
     if isinstance(source, MomentParams):
         return source
-    from ..core.fits import fit_material
+    from ...core.fits import fit_material
 
     brdf = brdf_of(source, profiles)
     return _memo(("fit", brdf.content_key()), lambda: MomentParams.from_fit(fit_material(brdf.profiles), brdf.kd))
@@ -343,7 +343,7 @@ def render_still(scene, out_path, quiet=False):
     """Render the scene to ``out_path``: .png display-referred (Standard view, sRGB, 8-bit RGBA),
     .exr linear scene radiance (32-bit float RGBA). Written atomically. ``quiet`` keeps
     Blender's progress lines off stdout."""
-    from ..core.atomic import atomic_path
+    from ...core.atomic import atomic_path
 
     ext = os.path.splitext(os.fspath(out_path))[1].lower()
     settings = scene.render.image_settings

@@ -6,7 +6,6 @@ Exit codes: 0 success, 2 bad input (one line on stderr naming the file and the f
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -47,9 +46,9 @@ def _bounded(high):
 
 def _guard(out, *inputs):
     """Refuse a bad destination before any work (atomic_path checks again when writing)."""
-    from .core.safeio import guard_output
+    from ..core.safeio import guard_output
 
-    from .core.nbrdf import parse_source
+    from ..core.nbrdf import parse_source
 
     # FILE:NAME (a material of a weights set) reads FILE: that is the input to protect.
     return guard_output(out, [parse_source(p)[0] for p in inputs if p])
@@ -63,15 +62,6 @@ def _elevation(text):
     if not 0.0 <= v < 90.0:
         raise argparse.ArgumentTypeError(f"must be in [0, 90) degrees: {text}")
     return v
-
-
-def write_json_atomic(data, path):
-    """Write JSON atomically; ``allow_nan=False`` means no NaN can get in."""
-    from .core.atomic import atomic_path
-
-    with atomic_path(path, ".json") as tmp, open(tmp, "w") as fh:
-        json.dump(data, fh, allow_nan=False)
-        fh.write("\n")
 
 
 def _progress(label, always=False):
@@ -99,7 +89,7 @@ def _progress(label, always=False):
 
 def _single_materials(specs):
     """A weights set named with no material is an error for commands that take materials one by one."""
-    from .core.nbrdf import load_network, is_weights_source, parse_source
+    from ..core.nbrdf import load_network, is_weights_source, parse_source
 
     for spec in specs:
         path, name = parse_source(spec)
@@ -108,9 +98,10 @@ def _single_materials(specs):
 
 
 def cmd_profiles(args):
-    from .core.integrate import default_views
-    from .core.nbrdf import read_table
-    from .core.profiles import compute_profiles
+    from ..core.atomic import write_json_atomic
+    from ..core.integrate import default_views
+    from ..core.nbrdf import read_table
+    from ..core.profiles import compute_profiles
 
     _guard(args.out, args.file)
     if args.plot:
@@ -133,7 +124,8 @@ def cmd_profiles(args):
 
 def cmd_fit(args):
     from .analyze import collect_inputs, input_names, load_profiles
-    from .core.fits import fit_set
+    from ..core.atomic import write_json_atomic
+    from ..core.fits import fit_set
 
     _single_materials(args.files)
     paths, problems = collect_inputs(args.files)
@@ -191,9 +183,9 @@ def _finite(text):
 
 
 def cmd_edit(args):
-    from .core.edit import EditTargets, edit
-    from .core.merl import write_merl
-    from .core.nbrdf import parse_source, read_table
+    from ..core.edit import EditTargets, edit
+    from ..core.merl import write_merl
+    from ..core.nbrdf import parse_source, read_table
 
     _guard(args.out, args.file)
     table = read_table(args.file)
@@ -208,7 +200,7 @@ def cmd_edit(args):
 
     prof = None
     if args.floor != "min":
-        from .core.profiles import compute_profiles
+        from ..core.profiles import compute_profiles
 
         prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd
     try:
@@ -264,7 +256,7 @@ def _floor_option(parser):
 
 
 def build_parser():
-    from .core import limits as L
+    from ..core import limits as L
 
     p = _Parser(prog="python -m addon",
                                 description="BRDF Moments: moment profiles of measured (MERL) BRDFs.")
@@ -340,8 +332,8 @@ def build_parser():
 
 
 def main(argv=None):
-    from .core.merl import MerlError, display_path
-    from .core.safeio import run_scope
+    from ..core.merl import MerlError
+    from ..core.safeio import display_path, run_scope
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -15,9 +15,10 @@ import os
 import bpy
 import numpy as np
 
-SHADER_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "shaders")
+from ...core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
+
+SHADER_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "shaders")
 SHADERS = {"model": "brdf_moments_model", "tabulated": "brdf_moments_table"}
-TABLE_SIZE = (1800, 810)   # (width, height) of the table texture
 
 
 class OSLUnavailable(RuntimeError):
@@ -37,7 +38,7 @@ def osl_available() -> tuple:
 
 
 def cache_dir() -> str:
-    from ..core.integrate import default_cache_dir
+    from ...core.integrate import default_cache_dir
 
     return os.path.join(default_cache_dir(), "preview")
 
@@ -52,7 +53,7 @@ def compile_shader(name: str, folder=None) -> str:
         if part.endswith((".osl", ".h")):
             with open(os.path.join(SHADER_DIR, part), "rb") as fh:
                 h.update(part.encode() + fh.read())
-    from ..core.atomic import atomic_path, own_folder
+    from ...core.atomic import atomic_path, own_folder
 
     folder = own_folder(folder or cache_dir())
     dst = os.path.join(folder, f"{name}-{h.hexdigest()[:12]}.oso")
@@ -116,7 +117,7 @@ def set_table_inputs(node, texture_path, mu_slope, sigma2, kd, samples=16, envir
         ins["Filter"].default_value = float(filter_scale)
     ins["Table"].default_value = texture_path
     ins["MuSlope"].default_value = float(mu_slope)
-    ins["Sigma2"].default_value = float(min(max(sigma2, 1e-7), math.pi ** 2 / 12))
+    ins["Sigma2"].default_value = float(min(max(sigma2, MIN_SIGMA2), LAMBERT_VARIANCE))
     ins["CosineShare"].default_value = float(cosine_share)
     ins["Albedo"].default_value = (*(math.pi * float(v) for v in kd), 1.0)
     ins["Samples"].default_value = int(samples)
@@ -128,7 +129,7 @@ def table_texture_pixels(values, kd):
     """(810, 1800, 3) float32, top row first: max(rho - kd, 0) of each cell in the shader's layout.
 
     ``values`` is (N_CELLS, 3) (missing cells already at kd, see TableBRDF)."""
-    from ..core.merl import RES_PD, RES_TD, RES_TH
+    from ...core.merl import RES_PD, RES_TD, RES_TH
 
     spec = np.maximum(np.asarray(values, np.float32) - np.asarray(kd, np.float32)[None, :], 0.0)
     cube = spec.reshape(RES_TH, RES_TD // 10, 10, RES_PD, 3)          # (ith, itd // 10, itd % 10, ipd, c)
@@ -142,8 +143,8 @@ def write_table_texture(brdf, folder=None) -> str:
     import glob
     import secrets
 
-    from ..core import cachefs
-    from ..core.limits import TABLE_TEXTURE_MAX_BYTES, TABLE_TEXTURE_MAX_ENTRIES
+    from ...core import cachefs
+    from ...core.limits import TABLE_TEXTURE_MAX_BYTES, TABLE_TEXTURE_MAX_ENTRIES
     from .environment import write_environment
 
     folder = cachefs.cache_folder(folder or cache_dir())

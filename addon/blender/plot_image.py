@@ -86,16 +86,10 @@ def energy_spline(theta, fit, channel_fit=None):
     keys = ("alpha_b", "alpha1", "m1")
     if any(f.get(k) is None for k in keys) or fit.get("theta0") is None or fit.get("theta1") is None:
         return np.full_like(theta, np.nan)
+    from ..core.fits import energy_curve
+
     ab, a1, m1 = (float(f[k]) for k in keys)
-    t0, t1 = float(fit["theta0"]), float(fit["theta1"])
-    out = np.full_like(theta, ab)
-    mid = (theta > t0) & (theta <= t1)
-    h = max(t1 - t0, 1e-9)
-    s = (theta[mid] - t0) / h
-    h00, h01, h11 = 2 * s ** 3 - 3 * s ** 2 + 1, -2 * s ** 3 + 3 * s ** 2, s ** 3 - s ** 2
-    out[mid] = h00 * ab + h01 * a1 + h11 * h * m1
-    out[theta > t1] = a1 + m1 * (theta[theta > t1] - t1)
-    return out
+    return energy_curve(theta, ab, float(fit["theta0"]), float(fit["theta1"]), a1, m1)
 
 
 TEXT = (0.85, 0.85, 0.85)
@@ -203,7 +197,7 @@ def region_plot(region, slider=None, used=None, correlation_a=None, width=600, h
     (dashed), the fitted point (orange), the sliders (white ring) and, when the sliders lie
     outside, the nearest reachable point Apply will use (red, joined to the sliders). The
     variance axis is logarithmic: regions span two decades."""
-    from .core.fits import LAMBERT_VARIANCE, correlation_curve
+    from ..core.fits import LAMBERT_VARIANCE, correlation_curve
     from .plot_font import ADVANCE, draw_text, text_width
 
     c = Canvas(width, height)

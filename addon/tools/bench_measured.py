@@ -30,14 +30,14 @@ import time
 
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 BACKSCATTER_LIMIT = 1.1
 TWO_SCALE_LIMIT = 4.0
 GRAZING_PEAK_DEG = 80.0
 
 
 def backscatter_ratio(table) -> float:
-    from .core.merl import lookup
+    from ..core.merl import lookup
 
     wo = np.array([[math.sin(math.pi / 4), 0.0, math.cos(math.pi / 4)]])
     back, _ = lookup(table, wo, wo)
@@ -47,7 +47,7 @@ def backscatter_ratio(table) -> float:
 
 def in_plane_lobe(table, kd, view_deg=30.0):
     """(peak angle in degrees, width at half, width at a tenth) of the in-plane specular part."""
-    from .core.merl import lookup
+    from ..core.merl import lookup
 
     to = math.radians(view_deg)
     ang = np.radians(np.linspace(-89.0, 89.0, 1781))
@@ -75,8 +75,8 @@ def in_plane_lobe(table, kd, view_deg=30.0):
 def minimum_cell_angle(table) -> float:
     """Polar angle (degrees) of the lower direction of the cell that sets the paper's floor
     (the minimum over the 45 deg slice, channel by channel; the largest of the three)."""
-    from .core.integrate import get_operator
-    from .core.profiles import DIFFUSE_VIEW, _slice_lower_cosine
+    from ..core.integrate import get_operator
+    from ..core.profiles import DIFFUSE_VIEW, _slice_lower_cosine
 
     cells = np.asarray(get_operator(np.array([DIFFUSE_VIEW]), memo=False).view(0)[0])
     cosine = _slice_lower_cosine(cells)
@@ -105,9 +105,9 @@ def _analyze(inputs, out, floor):
         rows = {r["material"]: r for r in csv.DictReader(fh)}
     nan = 0
     for name in rows:
-        from .analyze import safe_output_name
+        from ..core.names import distinct_name
 
-        with open(os.path.join(out, "materials", safe_output_name(name) + ".json")) as fh:
+        with open(os.path.join(out, "materials", distinct_name(name) + ".json")) as fh:
             prof = json.load(fh)["profiles"]
         upto = [i for i, t in enumerate(prof["theta_o"]) if t <= math.radians(85.0)]
         nan += any(prof["avg"][k][i] is None for k in ("alpha", "mu_theta", "sigma_tt") for i in upto)
@@ -116,9 +116,9 @@ def _analyze(inputs, out, floor):
 
 def bench_measured(quick=False):
     import samples
-    from .core import nbrdf
-    from .core.integrate import default_views, get_operator
-    from .core.profiles import ROBUST_MAX_ANGLE, ROBUST_PERCENTILE, diffuse_floor
+    from ..core import nbrdf
+    from ..core.integrate import default_views, get_operator
+    from ..core.profiles import ROBUST_MAX_ANGLE, ROBUST_PERCENTILE, diffuse_floor
 
     get_operator(default_views())  # the slice operator is cached per machine; not what is timed
     sets = [os.path.join(samples.MEASURED_DIR, f) for f in samples.MEASURED_SETS.values()]
@@ -152,20 +152,20 @@ def bench_measured(quick=False):
              "| floor | wall time (process) | CPU time (all processes) | analyze's own line "
              "| stderr lines (not progress) | NaN profiles ≤ 85° |",
              "|---|---|---|---|---|---|"]
-    for floor, ((wall, cpu), noise, fits, rows, nan, last) in runs.items():
+    for floor, ((wall, cpu), noise, _fits, _rows, nan, last) in runs.items():
         lines.append(f"| {floor} | {wall:.1f} s | {cpu:.1f} s | {last.split(';')[0]} | {len(noise)} | {nan} |")
     wall_d, cpu_d = np.array(dec_times).T
     lines += ["", f"Decoding one network into a MERL table (numpy, float32, chunks of {nbrdf.CHUNK} cells, one "
               f"process): median {1e3 * float(np.median(wall_d)):.0f} ms wall, {1e3 * float(np.median(cpu_d)):.0f} ms "
               f"CPU; {wall_d.sum():.1f} s wall for all {len(names)}.", ""]
-    for floor, (wall, noise, fits, rows, nan, last) in runs.items():
+    for floor, (_wall, noise, _fits, _rows, _nan, _last) in runs.items():
         for ln in noise[:5]:
             lines.append(f"- stderr ({floor}): `{ln.strip()[:150]}`")
     lines += ["", "### Measured materials: fits, floors and the paper's model", "",
               f"kd: the average channel's floor, `min` the paper's minimum over the 45° slice, `robust` the "
               f"{100 * ROBUST_PERCENTILE:.0f}th area percentile of the slice's cells within "
               f"{math.degrees(ROBUST_MAX_ANGLE):.0f}° of the normal. Fits (μ̃, σ̃², α̃b, energy RMSE) per floor. "
-              f"Diagnostics (module docstring of addon/bench_measured.py): back-scatter ratio (> {BACKSCATTER_LIMIT}), "
+              f"Diagnostics (module docstring of addon/tools/bench_measured.py): back-scatter ratio (> {BACKSCATTER_LIMIT}), "
               f"in-plane peak (grazing if beyond ±{GRAZING_PEAK_DEG:.0f}°), width ratio at 1/10 and 1/2 of the "
               f"peak (> {TWO_SCALE_LIMIT:g}).", "",
               "| material | kd min | paper min at | kd robust | μ̃ min | σ̃² min | α̃b min | μ̃ robust | σ̃² robust | α̃b robust "
@@ -210,7 +210,7 @@ def bench_measured(quick=False):
               f"{sum(r > 10 for r in kd_ratio)} of {len(names)} materials more than 10× higher. The cell that "
               f"sets the paper's minimum has a direction {'beyond 80°'} from the normal for "
               f"{sum(a > 80 for a in min_at)} of {len(names)} materials, beyond 85° for {sum(a > 85 for a in min_at)}.",
-              f"Correlation fits (σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12): "
+              "Correlation fits (σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12): "
               + ", ".join(f"{fl} a = {runs[fl][2]['correlation']['a']:.3f} (RMSE {runs[fl][2]['correlation']['rmse']:.3g})"
                           for fl in runs if runs[fl][2].get("correlation", {}).get("a") is not None)]
     return lines

@@ -234,7 +234,7 @@ def relink_textures():
             os.makedirs(folder, exist_ok=True)
             path = os.path.join(folder, name)
             if not os.path.isfile(path):
-                from .core.atomic import atomic_path
+                from ..core.atomic import atomic_path
 
                 with atomic_path(path, ".exr") as tmp:
                     with open(tmp, "wb") as fh:

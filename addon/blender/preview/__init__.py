@@ -3,7 +3,7 @@
 The numbers come from the bpy-free engine (``addon.core.render``); this package builds the
 scene. Import it only where ``bpy`` is available.
 
-    from addon.preview import build_preview, render_still
+    from addon.blender.preview import build_preview, render_still
     info = build_preview(scene, original, edited=None, *, path="auto", mode="model",
                          env=None, size=256, samples=16, lobe_samples=16, bake_samples=64,
                          engine="CYCLES", profiles=None)
