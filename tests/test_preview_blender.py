@@ -259,7 +259,7 @@ def test_render_command(sky, tmp_path, sample_table):
 def test_the_preview_sphere_is_closed_round_and_faces_out(scene, bpy):
     """The sphere mesh is built from arrays (bmesh's uvsphere froze Blender 3.4 for 0.28 s):
     every vertex on the unit sphere, every edge shared by two faces, every normal outward."""
-    from addon.preview import scene as sc
+    from addon.blender.preview import scene as sc
 
     mesh = sc.sphere_mesh()
     n_v, n_f = len(mesh.vertices), len(mesh.polygons)

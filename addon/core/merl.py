@@ -265,7 +265,7 @@ _HORIZON = {}
 
 def horizon_mask() -> np.ndarray:
     """(N_CELLS,) bool: cells whose centre has both directions above the horizon (the cells a
-    tabulated table holds; MERL's own files and the Neural-BRDF decodes have the same mask)."""
+    tabulated table holds; the Neural-BRDF decodes have the same mask)."""
     if "mask" not in _HORIZON:
         from .geometry import directions_from_half_diff
 
