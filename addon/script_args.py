@@ -29,7 +29,7 @@ def script_args(argv=None, blender=None) -> list:
     ``blender``: whether ``argv`` is a Blender command line (default: ask ``inside_blender``)."""
     argv = list(sys.argv if argv is None else argv)
     if "--" in argv:
-        return argv[argv.index("--") + 1:]
+        return argv[argv.index("--") + 1 :]
     if blender is None:
         blender = inside_blender()
     return [] if blender else argv[1:]

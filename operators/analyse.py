@@ -16,9 +16,12 @@ class BRDFMOMENTS_OT_analyse(BackgroundJob, bpy.types.Operator):
 
     material: bpy.props.StringProperty(name="Material", description="target material (default: active)")
     filepath: bpy.props.StringProperty(
-        name="MERL file", subtype="FILE_PATH", options={"HIDDEN", "SKIP_SAVE"},
+        name="MERL file",
+        subtype="FILE_PATH",
+        options={"HIDDEN", "SKIP_SAVE"},
         description="analyse this file instead of the material's (Load uses it): the material takes the path only "
-                    "once the analysis is done, so a cancelled or failed Load leaves it as it was")
+        "once the analysis is done, so a cancelled or failed Load leaves it as it was",
+    )
 
     def start(self, context):
         mat = target_material(context, self.material)

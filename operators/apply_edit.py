@@ -22,10 +22,13 @@ def resolve_artist_shader(context, choice):
         return "principled"
     ok = osl_available()[0]
     if choice == "OSL":
-        return "osl" if ok else "principled"     # a .blend made where OSL was: the approximation here
+        return "osl" if ok else "principled"  # a .blend made where OSL was: the approximation here
     scene = context.scene
-    osl_scene = scene is not None and scene.render.engine == "CYCLES" and bool(
-        getattr(getattr(scene, "cycles", None), "shading_system", False))
+    osl_scene = (
+        scene is not None
+        and scene.render.engine == "CYCLES"
+        and bool(getattr(getattr(scene, "cycles", None), "shading_system", False))
+    )
     return "osl" if ok and osl_scene else "principled"
 
 
@@ -66,9 +69,13 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         # Content-addressed output: the same file and sliders give the same name, and an
         # edit never overwrites another material's table (or the input).
         st = os.stat(source)
-        key = json.dumps([spec, st.st_size, st.st_mtime_ns, repr(targets), scale]
-                         + ([floor] if floor != "min" else []), sort_keys=True)
-        out = os.path.join(edits_folder(), f"{safe_name(mat.name)}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.binary")
+        key = json.dumps(
+            [spec, st.st_size, st.st_mtime_ns, repr(targets), scale] + ([floor] if floor != "min" else []),
+            sort_keys=True,
+        )
+        out = os.path.join(
+            edits_folder(), f"{safe_name(mat.name)}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.binary"
+        )
         self._mat_name = mat.name
         # Edits still shown by a material are never evicted from the bounded cache.
         in_use = [m.brdf_moments.edited_path for m in bpy.data.materials if m.brdf_moments.edited_path]
@@ -89,8 +96,9 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             cachefs.write_seal(out)
             cachefs.prune(os.path.dirname(out), EDITS_CACHE_MAX_ENTRIES, EDITS_CACHE_MAX_BYTES, keep=[out, *in_use])
             if res.profiles is None or scale:
-                res.profiles = compute_profiles(res.table, prof.theta_o, kd=prof.kd if prof.split else None,
-                                                split=prof.split)
+                res.profiles = compute_profiles(
+                    res.table, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split
+                )
             principled = texture = None
             if shader == "principled":
                 from ..addon.core.principled import fit_principled
@@ -129,14 +137,15 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             state.principled_data = json.dumps(principled.as_dict())
             artist.apply_principled(mat, principled)
             state.artist_shader_used = "principled"
-            note = (f"; '{mat.name}' now renders a Principled approximation "
-                    f"(error {100 * principled.error:.1f} %)")
+            note = f"; '{mat.name}' now renders a Principled approximation (error {100 * principled.error:.1f} %)"
         elif texture is not None:
             artist.apply_osl(mat, texture, res, context.scene)
             state.artist_shader_used = "osl"
             note = f"; '{mat.name}' now renders the edited table (OSL)"
         level = {"WARNING"} if res.warnings else {"INFO"}
-        msg = (f"{mat.name}: reached μ̃ {state.achieved_mu_slope:+.3f} (target {res.target_mu_slope:+.3f}), "
-               f"σ̃² {state.achieved_sigma2:.4f} (target {res.target_sigma2:.4f}), "
-               f"largest albedo {max(state.max_albedo):.3f}")
+        msg = (
+            f"{mat.name}: reached μ̃ {state.achieved_mu_slope:+.3f} (target {res.target_mu_slope:+.3f}), "
+            f"σ̃² {state.achieved_sigma2:.4f} (target {res.target_sigma2:.4f}), "
+            f"largest albedo {max(state.max_albedo):.3f}"
+        )
         self.report(level, msg + note + ("; " + "; ".join(res.warnings) if res.warnings else ""))

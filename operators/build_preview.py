@@ -34,17 +34,37 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
     job_label = "Preview"
 
     material: bpy.props.StringProperty(name="Material", description="source material (default: active)")
-    path: bpy.props.EnumProperty(name="Path", default="AUTO", items=[
-        ("AUTO", "Auto", "OSL where this Cycles has it, else baked"), ("OSL", "OSL", ""), ("BAKED", "Baked", "")])
-    mode: bpy.props.EnumProperty(name="Shows", default="TABULATED", items=[
-        ("TABULATED", "Tabulated", "the tables themselves"),
-        ("MODEL", "Sketch (moment model)", "the fits' moment model (paper Eq. 7): a sketch, not the material")])
+    path: bpy.props.EnumProperty(
+        name="Path",
+        default="AUTO",
+        items=[
+            ("AUTO", "Auto", "OSL where this Cycles has it, else baked"),
+            ("OSL", "OSL", ""),
+            ("BAKED", "Baked", ""),
+        ],
+    )
+    mode: bpy.props.EnumProperty(
+        name="Shows",
+        default="TABULATED",
+        items=[
+            ("TABULATED", "Tabulated", "the tables themselves"),
+            ("MODEL", "Sketch (moment model)", "the fits' moment model (paper Eq. 7): a sketch, not the material"),
+        ],
+    )
     env: bpy.props.StringProperty(name="Environment", description="bundled HDRI name or file (empty: default)")
-    size: bpy.props.IntProperty(name="Size", default=256, min=16, max=MAX_RENDER_SIZE,
-                                description="sphere size in pixels; the render is two spheres wide")
+    size: bpy.props.IntProperty(
+        name="Size",
+        default=256,
+        min=16,
+        max=MAX_RENDER_SIZE,
+        description="sphere size in pixels; the render is two spheres wide",
+    )
     samples: bpy.props.IntProperty(name="Samples", default=16, min=1, max=MAX_SAMPLES)
-    render_to: bpy.props.StringProperty(name="Render to", subtype="FILE_PATH",
-                                        description="also render a still here (.png display-referred, .exr linear)")
+    render_to: bpy.props.StringProperty(
+        name="Render to",
+        subtype="FILE_PATH",
+        description="also render a still here (.png display-referred, .exr linear)",
+    )
     use_panel_settings: bpy.props.BoolProperty(default=False, options={"HIDDEN"})
 
     def start(self, context):
@@ -60,8 +80,12 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
         if self.use_panel_settings:
-            self.path, self.mode, self.env, self.size = (state.preview_path, state.preview_mode, state.preview_env,
-                                                         state.preview_size)
+            self.path, self.mode, self.env, self.size = (
+                state.preview_path,
+                state.preview_mode,
+                state.preview_env,
+                state.preview_size,
+            )
         from ..addon.blender.preview import OSLUnavailable
 
         try:
@@ -85,14 +109,21 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
         env_path = resolve_environment(self.env or None)
         if self.render_to:  # refused now, before any work: the still may not replace an input
             guard_output(bpy.path.abspath(self.render_to), [source_file(source), edited_path, env_path])
-        env = load_environment(env_path) if path == "baked" else None      # bpy: main thread
+        env = load_environment(env_path) if path == "baked" else None  # bpy: main thread
         layout = sphere_layout(2 * size, size, 2)
         cache = bake_cache()
         notes = []
         if not sketch and not edited_path:
             notes.append("no edit applied yet: both spheres show the original table")
-        self._job = dict(mat=mat.name, path=path, mode=mode, env_path=env_path, layout=layout, notes=notes,
-                         labels=["original", "edited"] + (["(sketch)"] if sketch else []))
+        self._job = dict(
+            mat=mat.name,
+            path=path,
+            mode=mode,
+            env_path=env_path,
+            layout=layout,
+            notes=notes,
+            labels=["original", "edited"] + (["(sketch)"] if sketch else []),
+        )
 
         def work(report_progress):
             if sketch:
@@ -115,7 +146,7 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
     def finish(self, context, srcs):
         try:
             self._finish(context, srcs)
-        except RuntimeError as exc:       # Cycles could not render, OSL could not load: a report
+        except RuntimeError as exc:  # Cycles could not render, OSL could not load: a report
             raise ValueError(str(exc).strip() or type(exc).__name__) from None
 
     def _finish(self, context, srcs):
@@ -129,8 +160,17 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
         scene = bpy.data.scenes.get(SCENE) or bpy.data.scenes.new(SCENE)
         # The scene is built (and re-baked from the cache the job filled) but never shown in
         # the artist's window: the result goes into an image.
-        info = build_preview(scene, srcs[0], srcs[1], path=job["path"], mode=job["mode"], env=job["env_path"],
-                             size=(layout.width, layout.height), samples=self._samples, bake_samples=BAKE_SAMPLES)
+        info = build_preview(
+            scene,
+            srcs[0],
+            srcs[1],
+            path=job["path"],
+            mode=job["mode"],
+            env=job["env_path"],
+            size=(layout.width, layout.height),
+            samples=self._samples,
+            bake_samples=BAKE_SAMPLES,
+        )
         state.preview_material = info.materials[-1]
         if job["path"] == "baked":
             from ..addon.blender.preview import load_environment
@@ -172,8 +212,9 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
             from ..addon.core.safeio import guard_output
 
             out = bpy.path.abspath(self.render_to)
-            guard_output(out, [info.environment, source_file(bpy.path.abspath(state.source_path)),
-                               state.edited_path])  # checked again: the map, the tables are inputs
+            guard_output(
+                out, [info.environment, source_file(bpy.path.abspath(state.source_path)), state.edited_path]
+            )  # checked again: the map, the tables are inputs
             render_still(scene, out)
             text += f", rendered to {out}"
         self.report({"INFO"}, text + "".join(f"; {n}" for n in info.notes + job["notes"]))

@@ -43,7 +43,9 @@ def analysis_work(path, floor="min"):
         report_progress(1, 100)
         # The slice operator is built once per machine (minutes), then memory-mapped: the
         # progress bar matters on that first run.
-        prof = compute_profiles(table, floor=floor, progress=lambda done, total: report_progress(1 + 97 * done // total, 100))
+        prof = compute_profiles(
+            table, floor=floor, progress=lambda done, total: report_progress(1 + 97 * done // total, 100)
+        )
         fit = fit_material(prof)
         regions = {}
         if fit.get("mu_slope") is not None and fit.get("sigma2") is not None:

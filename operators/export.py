@@ -50,11 +50,19 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
     bl_label = "Export"
     bl_options = {"REGISTER"}
 
-    what: bpy.props.EnumProperty(name="What", items=[
-        ("TABLE", "Edited MERL table", "the re-synthesized table (.binary)"),
-        ("PROFILES", "Profiles JSON", "measured (and edited) moment profiles, as 'python -m addon profiles' writes"),
-        ("PLOTS", "Plots PNG", "the profile figures, measured and edited"),
-    ], default="TABLE")
+    what: bpy.props.EnumProperty(
+        name="What",
+        items=[
+            ("TABLE", "Edited MERL table", "the re-synthesized table (.binary)"),
+            (
+                "PROFILES",
+                "Profiles JSON",
+                "measured (and edited) moment profiles, as 'python -m addon profiles' writes",
+            ),
+            ("PLOTS", "Plots PNG", "the profile figures, measured and edited"),
+        ],
+        default="TABLE",
+    )
     directory: bpy.props.StringProperty(name="Folder", subtype="DIR_PATH")
     filter_folder: bpy.props.BoolProperty(default=True, options={"HIDDEN"})
     material: bpy.props.StringProperty(name="Material", description="source material (default: active)")

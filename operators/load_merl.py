@@ -45,8 +45,10 @@ class BRDFMOMENTS_OT_load_merl(BackgroundJob, bpy.types.Operator, ImportHelper):
     filter_glob: bpy.props.StringProperty(default="*.binary;*.npz;*.h5;*.hdf5;*.npy", options={"HIDDEN"})
     material: bpy.props.StringProperty(name="Material", description="target material (default: active)")
     network: bpy.props.EnumProperty(
-        name="Measured material", items=_network_items,
-        description="for a Neural-BRDF weights file (.npz, .h5) or folder of .npy files: which of its materials")
+        name="Measured material",
+        items=_network_items,
+        description="for a Neural-BRDF weights file (.npz, .h5) or folder of .npy files: which of its materials",
+    )
 
     def _spec(self):
         from ..addon.core.nbrdf import chooser_materials, source_spec
@@ -55,8 +57,10 @@ class BRDFMOMENTS_OT_load_merl(BackgroundJob, bpy.types.Operator, ImportHelper):
         names = chooser_materials(path)
         choice = self.network if self.network in names else None
         if len(names) > 1 and choice is None:
-            raise ValueError(f"{path}: holds {len(names)} measured materials; pick one in the "
-                             f"'Measured material' list (e.g. {', '.join(names[:3])})")
+            raise ValueError(
+                f"{path}: holds {len(names)} measured materials; pick one in the "
+                f"'Measured material' list (e.g. {', '.join(names[:3])})"
+            )
         return source_spec(path, choice)
 
     def invoke(self, context, event):

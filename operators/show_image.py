@@ -7,7 +7,7 @@ import bpy
 
 def image_editors():
     wm = bpy.context.window_manager
-    for win in (wm.windows if wm is not None else ()):
+    for win in wm.windows if wm is not None else ():
         for area in win.screen.areas:
             if area.type == "IMAGE_EDITOR":
                 yield win, area
@@ -35,7 +35,7 @@ class BRDFMOMENTS_OT_show_image(bpy.types.Operator):
             prefs = context.preferences.view
             saved = prefs.render_display_type
             try:
-                prefs.render_display_type = "WINDOW"      # a window of its own, whatever the preference
+                prefs.render_display_type = "WINDOW"  # a window of its own, whatever the preference
                 bpy.ops.render.view_show("INVOKE_DEFAULT")
             finally:
                 prefs.render_display_type = saved

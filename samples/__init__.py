@@ -46,8 +46,11 @@ def synthetic_set(n: int, seed: int = 0):
             f0 = (0.04, 0.04, 0.04)
             kd = tuple(float(v) for v in rng.uniform(0.02, 0.6, 3))
         if rng.uniform() < 0.15:
-            model = Phong(kd=kd, ks=tuple(float(v) for v in rng.uniform(0.2, 0.8, 3)),
-                          exponent=float(np.exp(rng.uniform(np.log(10), np.log(2000)))))
+            model = Phong(
+                kd=kd,
+                ks=tuple(float(v) for v in rng.uniform(0.2, 0.8, 3)),
+                exponent=float(np.exp(rng.uniform(np.log(10), np.log(2000)))),
+            )
         else:
             model = GGX(roughness=rough, f0=f0, kd=kd)
         out.append((f"synthetic_{i:03d}", model))
@@ -71,16 +74,21 @@ def measured_names() -> list[str]:
     """All measured materials, ``SET/NAME`` (the 51 RGL and 8 Nielsen networks)."""
     from addon.core.nbrdf import list_materials
 
-    return [f"{prefix}/{name}" for prefix, fname in MEASURED_SETS.items()
-            for name in list_materials(os.path.join(MEASURED_DIR, fname))]
+    return [
+        f"{prefix}/{name}"
+        for prefix, fname in MEASURED_SETS.items()
+        for name in list_materials(os.path.join(MEASURED_DIR, fname))
+    ]
 
 
 def measured_source(name: str):
     """(weights file, material key) of a measured sample name ``SET/NAME``."""
     prefix, sep, key = name.partition("/")
     if not sep or prefix not in MEASURED_SETS or not key:
-        raise KeyError(f"unknown sample {name!r}; measured samples are named "
-                       f"{' or '.join(p + '/NAME' for p in MEASURED_SETS)} (see python -m samples --list)")
+        raise KeyError(
+            f"unknown sample {name!r}; measured samples are named "
+            f"{' or '.join(p + '/NAME' for p in MEASURED_SETS)} (see python -m samples --list)"
+        )
     return os.path.join(MEASURED_DIR, MEASURED_SETS[prefix]), key
 
 
@@ -120,8 +128,10 @@ def sample_path(name: str, force: bool = False) -> str:
     if "/" in name:
         return _measured_path(name, force)
     if name not in CATALOG:
-        raise KeyError(f"unknown sample {name!r}; known: {', '.join(sorted(CATALOG))}, "
-                       f"and measured SET/NAME (python -m samples --list)")
+        raise KeyError(
+            f"unknown sample {name!r}; known: {', '.join(sorted(CATALOG))}, "
+            f"and measured SET/NAME (python -m samples --list)"
+        )
     folder = cache_dir()
     if os.path.lexists(folder) and not os.path.isdir(folder):
         raise ValueError(f"{folder}: BRDF_MOMENTS_SAMPLES must name a folder, and this is not one")

@@ -9,10 +9,15 @@ import sys
 
 from . import CATALOG, DEFAULT, measured_names, sample_path
 
-parser = argparse.ArgumentParser(prog="python -m samples", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-parser.add_argument("names", nargs="*", help=f"sample names (default {DEFAULT}); 'all' for every analytic "
-                                             "one, 'measured' for every measured one (59 tables of 35 MB: about 2 GB of cache)")
+parser = argparse.ArgumentParser(
+    prog="python -m samples", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+)
+parser.add_argument(
+    "names",
+    nargs="*",
+    help=f"sample names (default {DEFAULT}); 'all' for every analytic "
+    "one, 'measured' for every measured one (59 tables of 35 MB: about 2 GB of cache)",
+)
 parser.add_argument("--list", action="store_true", help="list the catalogue (analytic, then measured)")
 parser.add_argument("--force", action="store_true", help="re-tabulate even if cached")
 args = parser.parse_args()

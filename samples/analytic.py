@@ -36,7 +36,7 @@ class Phong:
         wi, wo = np.asarray(wi, float), np.asarray(wo, float)
         r = wo * np.array([-1.0, -1.0, 1.0])
         c = np.clip(np.sum(wi * r, axis=-1), 0.0, 1.0)
-        lobe = (self.exponent + 2.0) / (2.0 * np.pi) * c ** self.exponent
+        lobe = (self.exponent + 2.0) / (2.0 * np.pi) * c**self.exponent
         return _rgb(self.kd)[:, None] / np.pi + _rgb(self.ks)[:, None] * lobe.reshape(1, -1).reshape((1,) + c.shape)
 
 
@@ -50,7 +50,7 @@ class GGX:
 
     def __call__(self, wi, wo):
         wi, wo = np.asarray(wi, float), np.asarray(wo, float)
-        a2 = self.roughness ** 2
+        a2 = self.roughness**2
         h = wi + wo
         h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
         ch = np.clip(h[..., 2], 0.0, 1.0)

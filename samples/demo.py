@@ -32,8 +32,12 @@ def _args():
     p.add_argument("--sample", default="ggx_glossy")
     p.add_argument("--size", type=int, default=192, help="sphere size in pixels (the render is two spheres wide)")
     p.add_argument("--samples", type=int, default=32, help="Cycles samples per pixel")
-    p.add_argument("--path", choices=("auto", "osl", "baked"), default="auto",
-                   help="preview path; auto = OSL where Cycles has it, else baked")
+    p.add_argument(
+        "--path",
+        choices=("auto", "osl", "baked"),
+        default="auto",
+        help="preview path; auto = OSL where Cycles has it, else baked",
+    )
     p.add_argument("--installed", action="store_true", help="the add-on is already enabled")
     return p.parse_args(script_args())
 
@@ -59,8 +63,9 @@ def enable_addon(bpy):
     if bpy.app.version >= (4, 2, 0):
         repo = tempfile.mkdtemp(prefix="brdf_moments_repo_")
         os.symlink(ROOT, os.path.join(repo, "brdf_moments"))
-        bpy.context.preferences.extensions.repos.new(name="bmdemo", module="bmdemo", custom_directory=repo,
-                                                     source="USER")
+        bpy.context.preferences.extensions.repos.new(
+            name="bmdemo", module="bmdemo", custom_directory=repo, source="USER"
+        )
         addon_utils.enable("bl_ext.bmdemo.brdf_moments", default_set=True)
         return "extension bl_ext.bmdemo.brdf_moments"
     # Blender 3.4-4.1: a legacy add-on in the user's scripts folder.
@@ -104,8 +109,11 @@ def main():
     t0 = time.perf_counter()
     bpy.ops.brdf_moments.load_merl(filepath=merl, material=mat.name)
     state = mat.brdf_moments
-    _say("analyse", f"mu~ {state.fit_mu_slope:+.3f}, sigma2~ {state.fit_sigma2:.4f}, "
-                    f"kd {tuple(round(v, 3) for v in state.kd)} ({time.perf_counter() - t0:.1f} s)")
+    _say(
+        "analyse",
+        f"mu~ {state.fit_mu_slope:+.3f}, sigma2~ {state.fit_sigma2:.4f}, "
+        f"kd {tuple(round(v, 3) for v in state.kd)} ({time.perf_counter() - t0:.1f} s)",
+    )
 
     # The edit: a blurrier, slightly dimmer highlight in model mode (paper Eq. 7).
     state.sigma2 = min(state.fit_sigma2 * 2.0, 0.8)
@@ -113,9 +121,12 @@ def main():
     state.mode = "model"
     t0 = time.perf_counter()
     bpy.ops.brdf_moments.apply_edit(material=mat.name)
-    _say("apply", f"target sigma2~ {state.sigma2:.4f}: reached mu~ {state.achieved_mu_slope:+.3f}, "
-                  f"sigma2~ {state.achieved_sigma2:.4f}, largest albedo {max(state.max_albedo):.3f} "
-                  f"({time.perf_counter() - t0:.1f} s)")
+    _say(
+        "apply",
+        f"target sigma2~ {state.sigma2:.4f}: reached mu~ {state.achieved_mu_slope:+.3f}, "
+        f"sigma2~ {state.achieved_sigma2:.4f}, largest albedo {max(state.max_albedo):.3f} "
+        f"({time.perf_counter() - t0:.1f} s)",
+    )
     for warning in filter(None, state.edit_warnings.split("\n")):
         _say("apply", f"warning: {warning}")
 
@@ -126,20 +137,26 @@ def main():
     renders = []
     if has_operator(bpy, "build_preview"):
         t0 = time.perf_counter()
-        bpy.ops.brdf_moments.build_preview(material=mat.name, path=args.path.upper(), size=args.size,
-                                           samples=args.samples,
-                                           render_to=os.path.join(args.out, f"{args.sample}_preview.png"))
+        bpy.ops.brdf_moments.build_preview(
+            material=mat.name,
+            path=args.path.upper(),
+            size=args.size,
+            samples=args.samples,
+            render_to=os.path.join(args.out, f"{args.sample}_preview.png"),
+        )
         renders.append(os.path.join(args.out, f"{args.sample}_preview.png"))
         _say("preview", f"original | edited rendered to {renders[-1]} ({time.perf_counter() - t0:.1f} s)")
 
     summary = {
-        "blender": bpy.app.version_string, "sample": args.sample,
+        "blender": bpy.app.version_string,
+        "sample": args.sample,
         "fit": {"mu_slope": state.fit_mu_slope, "sigma2": state.fit_sigma2},
-        "target": {"mu_slope": state.mu_slope, "sigma2": state.sigma2, "strength": state.strength,
-                   "mode": state.mode},
+        "target": {"mu_slope": state.mu_slope, "sigma2": state.sigma2, "strength": state.strength, "mode": state.mode},
         "reached": {"mu_slope": state.achieved_mu_slope, "sigma2": state.achieved_sigma2},
-        "max_albedo": list(state.max_albedo), "warnings": state.edit_warnings,
-        "files": sorted(os.listdir(args.out)), "renders": renders,
+        "max_albedo": list(state.max_albedo),
+        "warnings": state.edit_warnings,
+        "files": sorted(os.listdir(args.out)),
+        "renders": renders,
         "seconds": round(time.perf_counter() - t_start, 1),
     }
     from addon.core.atomic import atomic_path  # guarded and atomic, like every other writer

@@ -31,8 +31,9 @@ def blender_ext_tool():
     if spec is None or not spec.origin:
         raise SystemExit("package: the bpy module is needed for Blender's extension builder (run scripts/setup.sh)")
     # <bpy>/<major.minor>/scripts/...: found by glob, so any bpy version's builder serves.
-    pattern = os.path.join(os.path.dirname(spec.origin), "[0-9]*.[0-9]*", "scripts", "addons_core", "bl_pkg", "cli",
-                           "blender_ext.py")
+    pattern = os.path.join(
+        os.path.dirname(spec.origin), "[0-9]*.[0-9]*", "scripts", "addons_core", "bl_pkg", "cli", "blender_ext.py"
+    )
     hits = sorted(glob.glob(pattern))
     if not hits:
         raise SystemExit(f"package: {pattern} not found")
@@ -75,15 +76,30 @@ def build(out_dir, root=ROOT):
     built = []
     missing = [w for w in manifest.get("wheels", []) if not os.path.isfile(os.path.join(root, w))]
     if missing:
-        print(f"package: skipping the extension zip, wheel(s) missing (run scripts/setup.sh): {', '.join(missing)}",
-              file=sys.stderr)
+        print(
+            f"package: skipping the extension zip, wheel(s) missing (run scripts/setup.sh): {', '.join(missing)}",
+            file=sys.stderr,
+        )
     else:
         ext = os.path.join(out_dir, f"{manifest['id']}-{manifest['version']}.zip")
         if os.path.exists(ext):
             os.unlink(ext)  # the builder refuses to overwrite
         # -W: the builder's second copy of each wheel (removed below) is not the user's concern
-        subprocess.run([sys.executable, "-W", "ignore:Duplicate name", blender_ext_tool(), "build", "--source-dir", root,
-                        "--output-filepath", ext], check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [
+                sys.executable,
+                "-W",
+                "ignore:Duplicate name",
+                blender_ext_tool(),
+                "build",
+                "--source-dir",
+                root,
+                "--output-filepath",
+                ext,
+            ],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
         _drop_duplicates(ext)
         built.append(ext)
     built.append(build_legacy(out_dir, manifest, root))

@@ -23,10 +23,13 @@ BEGIN, END = "<!-- stress-table:begin -->", "<!-- stress-table:end -->"
 
 
 def render(summary: dict, seconds: float, result: str) -> str:
-    lines = [f"Run: {datetime.date.today().isoformat()}, `pytest -m stress` ({result}), wall time "
-             f"{seconds:.0f} s on {platform.machine()} with {os.cpu_count()} cores (shared).", "",
-             "| category | cases | clear error | clamped / flagged valid | valid (checked) |",
-             "|---|---:|---:|---:|---:|"]
+    lines = [
+        f"Run: {datetime.date.today().isoformat()}, `pytest -m stress` ({result}), wall time "
+        f"{seconds:.0f} s on {platform.machine()} with {os.cpu_count()} cores (shared).",
+        "",
+        "| category | cases | clear error | clamped / flagged valid | valid (checked) |",
+        "|---|---:|---:|---:|---:|",
+    ]
     totals = [0, 0, 0, 0]
     for cat, data in summary.items():
         c = data["counts"]
@@ -44,8 +47,13 @@ def main(argv):
         env = dict(os.environ, BRDF_MOMENTS_STRESS_SUMMARY=out)
         env.setdefault("BRDF_MOMENTS_CACHE", os.path.join(ROOT, ".cache", "engine"))
         t = time.perf_counter()
-        res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-m", "stress", "tests", *argv], cwd=ROOT,
-                             env=env, capture_output=True, text=True)
+        res = subprocess.run(
+            [sys.executable, "-m", "pytest", "-q", "-m", "stress", "tests", *argv],
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+        )
         seconds = time.perf_counter() - t
         last = (res.stdout.strip().splitlines() or ["no output"])[-1].strip("= ")
         print(res.stdout[-3000:])
@@ -65,8 +73,10 @@ def main(argv):
     _, tail = rest.split(END, 1)
     with open(path, "w", encoding="utf-8") as fh:
         fh.write(f"{head}{BEGIN}\n{table}\n{END}{tail}")
-    with open(os.path.join(ROOT, "out", "stress-summary.json") if os.path.isdir(os.path.join(ROOT, "out"))
-              else os.devnull, "w") as fh:
+    with open(
+        os.path.join(ROOT, "out", "stress-summary.json") if os.path.isdir(os.path.join(ROOT, "out")) else os.devnull,
+        "w",
+    ) as fh:
         json.dump(summary, fh, indent=1)
     print(table)
     return res.returncode

@@ -93,7 +93,7 @@ def assert_profiles_sane(prof):
         stt, spp, stp = (np.asarray(p[k])[defined] for k in ("sigma_tt", "sigma_pp", "sigma_tp"))
         ok = np.isfinite(stt) & np.isfinite(spp)
         assert np.all(stt[ok] >= 0) and np.all(spp[ok] >= 0)
-        assert np.all(stt[ok] <= half ** 2 + 1e-9) and np.all(spp[ok] <= half ** 2 + 1e-9)
+        assert np.all(stt[ok] <= half**2 + 1e-9) and np.all(spp[ok] <= half**2 + 1e-9)
         assert np.all(stp[ok] ** 2 <= stt[ok] * spp[ok] * (1 + 1e-6) + 1e-18), f"{ch}: |correlation| > 1"
         if "kurt_40" in p:
             for s_key, k_key in (("skew_30", "kurt_40"), ("skew_03", "kurt_04")):
@@ -110,8 +110,14 @@ def run_cli(*args, cwd=ROOT, timeout=300):
     env = dict(os.environ)
     if os.path.abspath(cwd) != ROOT:
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [ROOT, env.get("PYTHONPATH")]))
-    return subprocess.run([sys.executable, "-m", "addon", *map(str, args)], cwd=cwd, capture_output=True, text=True,
-                          env=env, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "addon", *map(str, args)],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+    )
 
 
 def assert_one_line_error(res, *fragments, progress=None):
@@ -140,17 +146,25 @@ def merl_bytes(stored: np.ndarray, header=(90, 90, 180)) -> bytes:
 def exr_bytes(width, height, compression=3, body=b""):
     """A scanline OpenEXR header (RGB float) claiming ``width`` x ``height``, its chunk table
     pointing into ``body``: enough for a decoder to start allocating what the header says."""
+
     def attr(name, kind, value):
         return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
 
     chans = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1) for c in "BGR") + b"\0"
     box = struct.pack("<4i", 0, 0, width - 1, height - 1)
-    head = (b"\x76\x2f\x31\x01" + struct.pack("<I", 2) + attr("channels", "chlist", chans)
-            + attr("compression", "compression", bytes([compression])) + attr("dataWindow", "box2i", box)
-            + attr("displayWindow", "box2i", box) + attr("lineOrder", "lineOrder", b"\0")
-            + attr("pixelAspectRatio", "float", struct.pack("<f", 1.0))
-            + attr("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0))
-            + attr("screenWindowWidth", "float", struct.pack("<f", 1.0)) + b"\0")
+    head = (
+        b"\x76\x2f\x31\x01"
+        + struct.pack("<I", 2)
+        + attr("channels", "chlist", chans)
+        + attr("compression", "compression", bytes([compression]))
+        + attr("dataWindow", "box2i", box)
+        + attr("displayWindow", "box2i", box)
+        + attr("lineOrder", "lineOrder", b"\0")
+        + attr("pixelAspectRatio", "float", struct.pack("<f", 1.0))
+        + attr("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0))
+        + attr("screenWindowWidth", "float", struct.pack("<f", 1.0))
+        + b"\0"
+    )
     chunks = -(-height // {0: 1, 3: 16}[compression])
     start = len(head) + 8 * chunks
     body = body or bytes(max(16, chunks * 16))

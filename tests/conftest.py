@@ -17,8 +17,11 @@ os.environ.setdefault("BRDF_MOMENTS_SAMPLES", os.path.join(ROOT, ".cache", "samp
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: takes more than a few seconds")
     config.addinivalue_line("markers", "stress: numerical-stability and bad-input suite")
-    config.addinivalue_line("markers", "blender: needs Blender (the bpy module, a blender binary or its "
-                                       "builder); scripts/test.sh --fast runs the tests without it")
+    config.addinivalue_line(
+        "markers",
+        "blender: needs Blender (the bpy module, a blender binary or its "
+        "builder); scripts/test.sh --fast runs the tests without it",
+    )
 
 
 def pytest_collection_modifyitems(config, items):
@@ -61,8 +64,9 @@ def blender(tmp_path_factory):
 
     repo = tmp_path_factory.mktemp("ext-repo")
     os.symlink(ROOT, repo / "brdf_moments")
-    bpy.context.preferences.extensions.repos.new(name="bmtest", module="bmtest", custom_directory=str(repo),
-                                                 source="USER")
+    bpy.context.preferences.extensions.repos.new(
+        name="bmtest", module="bmtest", custom_directory=str(repo), source="USER"
+    )
     import addon_utils
 
     addon_utils.enable("bl_ext.bmtest.brdf_moments", default_set=True)

@@ -29,8 +29,9 @@ def artist(fresh, tmp_path, monkeypatch):
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
     diffuse.inputs["Color"].default_value = (0.8, 0.1, 0.1, 1.0)
-    glossy = nt.nodes.new("ShaderNodeBsdfAnisotropic" if "ShaderNodeBsdfAnisotropic" in dir(bpy.types)
-                          else "ShaderNodeBsdfGlossy")
+    glossy = nt.nodes.new(
+        "ShaderNodeBsdfAnisotropic" if "ShaderNodeBsdfAnisotropic" in dir(bpy.types) else "ShaderNodeBsdfGlossy"
+    )
     mix = nt.nodes.new("ShaderNodeMixShader")
     mix.inputs["Fac"].default_value = 0.3
     nt.links.new(diffuse.outputs[0], mix.inputs[1])
@@ -69,11 +70,22 @@ def _render(bpy, scene, path):
 
 def _tree(mat):
     nt = mat.node_tree
-    nodes = sorted((n.name, n.bl_idname, tuple(
-        tuple(s.default_value) if hasattr(s.default_value, "__len__") else s.default_value
-        for s in n.inputs if hasattr(s, "default_value"))) for n in nt.nodes)
-    links = sorted((link.from_node.name, link.from_socket.identifier, link.to_node.name, link.to_socket.identifier)
-                   for link in nt.links)
+    nodes = sorted(
+        (
+            n.name,
+            n.bl_idname,
+            tuple(
+                tuple(s.default_value) if hasattr(s.default_value, "__len__") else s.default_value
+                for s in n.inputs
+                if hasattr(s, "default_value")
+            ),
+        )
+        for n in nt.nodes
+    )
+    links = sorted(
+        (link.from_node.name, link.from_socket.identifier, link.to_node.name, link.to_socket.identifier)
+        for link in nt.links
+    )
     return nodes, links
 
 
@@ -179,11 +191,12 @@ def test_osl_edit_keeps_its_table_texture_packed_in_the_blend(artist):
     bpy.ops.wm.save_as_mainfile(filepath=path)
     with open(tex, "rb") as fh:
         data = fh.read()
-    os.remove(tex)                                    # "another machine": the texture file is gone
+    os.remove(tex)  # "another machine": the texture file is gone
     bpy.ops.wm.open_mainfile(filepath=path)
     mat = bpy.data.materials["Artist"]
-    script = next(n for n in mat.node_tree.nodes["BRDF Moments edit"].node_tree.nodes
-                  if n.bl_idname == "ShaderNodeScript")
+    script = next(
+        n for n in mat.node_tree.nodes["BRDF Moments edit"].node_tree.nodes if n.bl_idname == "ShaderNodeScript"
+    )
     new = script.inputs["Table"].default_value
     assert os.path.isfile(new)
     with open(new, "rb") as fh:
@@ -211,8 +224,8 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     after = live.read_preview_image(mat)
     lay = sphere_layout(96, 48, 2)
     d, (l0, l1), top = lay.diameter, lay.lefts, lay.top
-    body = slice(top + 12, top + d)                       # below the labels
-    np.testing.assert_array_equal(after[body, l0:l0 + d], before[body, l0:l0 + d])
+    body = slice(top + 12, top + d)  # below the labels
+    np.testing.assert_array_equal(after[body, l0 : l0 + d], before[body, l0 : l0 + d])
     # the edited sphere: the bake of the draft synthesis of the new sliders, upsampled
     from addon.core.render.live import LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
 
@@ -221,9 +234,9 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     env = load_environment(resolve_environment(None))
     rgb, cov = bake_sphere(TableBRDF(new, state.profiles()), env, max(d // LIVE_DIAMETER_DIV, 8), LIVE_SAMPLES, 0)
     want = live.upsample(rgb * cov[..., None], d)
-    np.testing.assert_allclose(after[body, l1:l1 + d, :3], want[12:], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(after[body, l1 : l1 + d, :3], want[12:], rtol=1e-5, atol=1e-6)
     # a wider lobe: the highlight drops
-    assert after[body, l1:l1 + d, :3].max() < before[body, l1:l1 + d, :3].max()
+    assert after[body, l1 : l1 + d, :3].max() < before[body, l1 : l1 + d, :3].max()
 
 
 def test_the_sliders_start_at_the_fits_even_below_minus_one(artist):
@@ -252,7 +265,7 @@ def test_the_panel_shows_four_significant_digits_and_the_approximation(artist):
     panel.draw_material(_Recorder(bpy, log), mat)
     texts = [entry[2].get("text", "") for entry in log if entry[0] == "label"]
     assert f"σ̃² = {state.fit_sigma2:.4g}" in texts
-    whole = " ".join(texts)                  # wrapped over several labels
+    whole = " ".join(texts)  # wrapped over several labels
     assert "Principled BSDF fitted to the edited table: an approximation" in whole
     ops = [entry[1] for entry in log if entry[0] == "operator"]
     assert "brdf_moments.restore_material" in ops
@@ -283,6 +296,9 @@ def test_osl_table_texture_next_to_the_blend_moves_with_it(artist):
     moved = tmp / "b"
     shutil.move(str(first), str(moved))
     bpy.ops.wm.open_mainfile(filepath=str(moved / "scene.blend"))
-    script = next(n for n in bpy.data.materials["Artist"].node_tree.nodes["BRDF Moments edit"].node_tree.nodes
-                  if n.bl_idname == "ShaderNodeScript")
+    script = next(
+        n
+        for n in bpy.data.materials["Artist"].node_tree.nodes["BRDF Moments edit"].node_tree.nodes
+        if n.bl_idname == "ShaderNodeScript"
+    )
     assert os.path.samefile(script.inputs["Table"].default_value, moved / "brdf_moments" / written[0].name)

@@ -35,17 +35,40 @@ def lane_run(tmp_path_factory):
             pytest.fail("blender is not installed, so the blender -b lane cannot run (scripts/setup.sh installs it)")
         pytest.skip("no blender binary (scripts/setup.sh installs Debian's)")
     tmp = tmp_path_factory.mktemp("lane")
-    built = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "package.py"), str(tmp / "dist")],
-                           capture_output=True, text=True, check=True).stdout.split()
+    built = subprocess.run(
+        [sys.executable, os.path.join(ROOT, "scripts", "package.py"), str(tmp / "dist")],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
     legacy = next(p for p in built if p.endswith("-legacy.zip"))
     out = tmp / "out"
     env = dict(os.environ, BLENDER_USER_SCRIPTS=str(tmp / "scripts"), BLENDER_USER_CONFIG=str(tmp / "config"))
-    res = subprocess.run([BLENDER, "-b", "--factory-startup", "--python-exit-code", "1",
-                          "--python-expr", INSTALL.format(zip=legacy),
-                          "-P", os.path.join(ROOT, "samples", "demo.py"),
-                          "-P", os.path.join(ROOT, "tests", "blender", "lane_operators.py"), "--",
-                          "--installed", "--out", str(out), "--size", "64"],
-                         capture_output=True, text=True, env=env, timeout=1200)
+    res = subprocess.run(
+        [
+            BLENDER,
+            "-b",
+            "--factory-startup",
+            "--python-exit-code",
+            "1",
+            "--python-expr",
+            INSTALL.format(zip=legacy),
+            "-P",
+            os.path.join(ROOT, "samples", "demo.py"),
+            "-P",
+            os.path.join(ROOT, "tests", "blender", "lane_operators.py"),
+            "--",
+            "--installed",
+            "--out",
+            str(out),
+            "--size",
+            "64",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=1200,
+    )
     return res, out, tmp
 
 
@@ -60,8 +83,12 @@ def test_legacy_addon_runs_the_whole_flow_in_blender_34(lane_run, sample_table):
     assert os.path.isdir(tmp / "scripts" / "addons" / "brdf_moments")
     summary = json.loads((out / "demo.json").read_text())
     assert summary["blender"].startswith("3.4")
-    for name in ("ggx_glossy_edited.binary", "ggx_glossy_profiles.json", "ggx_glossy_measured_profiles.png",
-                 "ggx_glossy_edited_profiles.png"):
+    for name in (
+        "ggx_glossy_edited.binary",
+        "ggx_glossy_profiles.json",
+        "ggx_glossy_measured_profiles.png",
+        "ggx_glossy_edited_profiles.png",
+    ):
         assert name in summary["files"]
     # Same engine, other numpy/scipy: the profiles Blender 3.4 measured agree with ours.
     data = json.loads((out / "ggx_glossy_profiles.json").read_text())
@@ -89,8 +116,9 @@ def test_analyse_and_reset_run_in_blender_34(lane_run):
     assert ops["edited_sliders"]["strength"] != 1.0
     assert ops["reset_sliders"]["strength"] == 1.0
     assert ops["reset_sliders"]["sigma2"] == pytest.approx(ops["fit_after"]["sigma2"], rel=1e-6)
-    assert ops["reset_sliders"]["mu_slope"] == pytest.approx(min(max(ops["fit_after"]["mu_slope"], -2.0), 0.0),
-                                                          abs=1e-6)
+    assert ops["reset_sliders"]["mu_slope"] == pytest.approx(
+        min(max(ops["fit_after"]["mu_slope"], -2.0), 0.0), abs=1e-6
+    )
 
 
 def test_apply_edits_the_material_itself_in_blender_34(lane_run):

@@ -14,8 +14,12 @@ pytestmark = pytest.mark.blender  # lane 3: the bpy 5.0 module
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PY50 = os.path.join(ROOT, ".venv-bpy50", "bin", "python")
 # The tests that drive Blender (the engine's own tests do not depend on the bpy version).
-LANE_TESTS = ["tests/test_extension.py", "tests/test_operators.py", "tests/test_jobs.py",
-              "tests/test_preview_blender.py"]
+LANE_TESTS = [
+    "tests/test_extension.py",
+    "tests/test_operators.py",
+    "tests/test_jobs.py",
+    "tests/test_preview_blender.py",
+]
 
 
 @pytest.fixture(scope="module")
@@ -24,8 +28,12 @@ def py50():
         if os.environ.get("BRDF_MOMENTS_REQUIRE_LANES"):
             pytest.fail(f"{PY50} is missing, so the bpy 5.0 lane cannot run (scripts/setup.sh makes it)")
         pytest.skip("no .venv-bpy50 (scripts/setup.sh makes it)")
-    res = subprocess.run([PY50, "-c", "import bpy, numpy; print(bpy.app.version[:2], numpy.__version__)"],
-                         capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [PY50, "-c", "import bpy, numpy; print(bpy.app.version[:2], numpy.__version__)"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 0, res.stderr[-2000:]
     assert res.stdout.split("\n")[-2].startswith("(5, 0) 1.26"), res.stdout
     return PY50
@@ -33,8 +41,14 @@ def py50():
 
 def test_the_blender_tests_pass_under_bpy_50_with_no_deprecated_call(py50, tmp_path):
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))
-    res = subprocess.run([py50, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider", "-W", "error::DeprecationWarning",
-                          *LANE_TESTS], cwd=ROOT, capture_output=True, text=True, env=env, timeout=1800)
+    res = subprocess.run(
+        [py50, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider", "-W", "error::DeprecationWarning", *LANE_TESTS],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=1800,
+    )
     tail = (res.stdout + res.stderr)[-6000:]
     assert res.returncode == 0, tail
     summary = res.stdout.strip().splitlines()[-1]
@@ -53,9 +67,30 @@ def test_a_render_is_the_same_under_45_and_50(py50, tmp_path):
     for py, tag in ((sys.executable, "45"), (py50, "50")):
         out = tmp_path / f"render{tag}.exr"
         env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / f"user{tag}"))
-        res = subprocess.run([py, "-m", "addon", "render", src, "--path", "osl", "--mode", "tabulated", "--size", "48",
-                              "--samples", "4", "--out", str(out)], cwd=ROOT, capture_output=True, text=True, env=env,
-                             timeout=600)
+        res = subprocess.run(
+            [
+                py,
+                "-m",
+                "addon",
+                "render",
+                src,
+                "--path",
+                "osl",
+                "--mode",
+                "tabulated",
+                "--size",
+                "48",
+                "--samples",
+                "4",
+                "--out",
+                str(out),
+            ],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=600,
+        )
         assert res.returncode == 0, res.stderr[-3000:]
         images.append(OpenEXR.File(str(out)).channels()["RGBA"].pixels.astype(float))
     a, b = images

@@ -8,13 +8,29 @@ import sys
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-KEYS = ["alpha", "mu_theta", "mu_phi", "sigma_tt", "sigma_tp", "sigma_pp", "skew_30", "skew_21", "skew_12",
-        "skew_03", "kurt_40", "kurt_31", "kurt_22", "kurt_13", "kurt_04"]
+KEYS = [
+    "alpha",
+    "mu_theta",
+    "mu_phi",
+    "sigma_tt",
+    "sigma_tp",
+    "sigma_pp",
+    "skew_30",
+    "skew_21",
+    "skew_12",
+    "skew_03",
+    "kurt_40",
+    "kurt_31",
+    "kurt_22",
+    "kurt_13",
+    "kurt_04",
+]
 
 
 def run(*args):
-    return subprocess.run([sys.executable, "-m", "addon", *args], cwd=ROOT, capture_output=True, text=True,
-                          env=dict(os.environ))
+    return subprocess.run(
+        [sys.executable, "-m", "addon", *args], cwd=ROOT, capture_output=True, text=True, env=dict(os.environ)
+    )
 
 
 def test_help_works():
@@ -29,8 +45,18 @@ def test_profiles_writes_exactly_the_spec_keys(tmp_path):
 
     out = tmp_path / "p.json"
     plot = tmp_path / "p.png"
-    res = run("profiles", samples.sample_path("gold"), "--out", str(out), "--elevations", "10",
-              "--max-elevation", "80", "--plot", str(plot))
+    res = run(
+        "profiles",
+        samples.sample_path("gold"),
+        "--out",
+        str(out),
+        "--elevations",
+        "10",
+        "--max-elevation",
+        "80",
+        "--plot",
+        str(plot),
+    )
     assert res.returncode == 0, res.stderr
     data = json.loads(out.read_text())
     assert set(data) == {"theta_o", "kd", "r", "g", "b", "avg"}

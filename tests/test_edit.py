@@ -57,10 +57,16 @@ def test_edited_table_is_reciprocal_and_keeps_missing_cells(glossy, targets):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("targets", [
-    EditTargets(sigma2=1e-12), EditTargets(mu_slope=-1.0), EditTargets(mu_slope=0.0),
-    EditTargets(mu_slope=-3.0, sigma2=50.0), EditTargets(mode="model", mu_slope=0.0, sigma2=1e-9),
-])
+@pytest.mark.parametrize(
+    "targets",
+    [
+        EditTargets(sigma2=1e-12),
+        EditTargets(mu_slope=-1.0),
+        EditTargets(mu_slope=0.0),
+        EditTargets(mu_slope=-3.0, sigma2=50.0),
+        EditTargets(mode="model", mu_slope=0.0, sigma2=1e-9),
+    ],
+)
 def test_degenerate_sliders_give_finite_valid_tables(glossy, targets):
     table, prof, fit = glossy
     res = edit(table, targets, prof, fit, remeasure=False)
@@ -73,7 +79,7 @@ def test_degenerate_sliders_give_finite_valid_tables(glossy, targets):
     else:
         assert res.target_mu_slope == fit["mu_slope"]
     if targets.sigma2 is not None:
-        assert 0.0 < res.target_sigma2 <= math.pi ** 2 / 12
+        assert 0.0 < res.target_sigma2 <= math.pi**2 / 12
 
 
 def test_scale_to_albedo_brings_the_peak_to_one(glossy):

@@ -53,8 +53,9 @@ def test_every_view_follows_a_variance_edit(narrowed):
 def test_fidelity_is_measured_on_the_written_table(glossy, narrowed):
     """The result's figures are those of re-measuring the table itself (the stick is not the solver)."""
     table, prof, fit = glossy
-    vt = view_targets(prof, fit, EditTargets(sigma2=fit["sigma2"] * 0.5), narrowed.target_mu_slope,
-                      narrowed.target_sigma2)
+    vt = view_targets(
+        prof, fit, EditTargets(sigma2=fit["sigma2"] * 0.5), narrowed.target_mu_slope, narrowed.target_sigma2
+    )
     again = measure(narrowed.table, vt, prof)
     for ch in "rgb":
         assert again.channels[ch].variance_worst == pytest.approx(narrowed.fidelity.channels[ch].variance_worst)
@@ -95,8 +96,9 @@ def test_reciprocal_and_missing_cells_stay_missing(glossy):
     holes = rng.choice(valid.shape[1], 20000, replace=False)
     valid[:, holes] = False
     holed = MerlTable(np.where(valid, table.rho, 0.0), valid, None)
-    res = edit(holed, EditTargets(sigma2=fit["sigma2"] * 0.6, mu_slope=fit["mu_slope"] + 0.02), prof, fit,
-               remeasure=False)
+    res = edit(
+        holed, EditTargets(sigma2=fit["sigma2"] * 0.6, mu_slope=fit["mu_slope"] + 0.02), prof, fit, remeasure=False
+    )
     np.testing.assert_array_equal(res.table.valid, valid)
     assert np.all(res.table.rho[~valid] == 0.0)
     assert np.isfinite(res.table.rho).all() and (res.table.rho >= 0).all()
@@ -192,7 +194,7 @@ def test_an_energy_edit_of_a_broad_lobe_promises_its_own_variance(sample_table):
     table = sample_table("nielsen/greencloth")
     prof = compute_profiles(table)
     fit = fit_material(prof)
-    assert fit["sigma2"] > LAMBERT_VARIANCE      # the case in question
+    assert fit["sigma2"] > LAMBERT_VARIANCE  # the case in question
     for t in (EditTargets(strength=0.8), EditTargets(colour=(1.0, 0.7, 0.4))):
         res = edit(table, t, prof, fit)
         assert res.target_sigma2 == fit["sigma2"] and not res.warnings

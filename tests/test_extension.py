@@ -19,8 +19,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 def test_manifest_passes_blenders_validator(blender):
     # <bpy>/<version>/ from Blender itself: the same test serves every bpy lane.
-    tool = os.path.join(blender.utils.resource_path("LOCAL"), "scripts", "addons_core", "bl_pkg", "cli",
-                        "blender_ext.py")
+    tool = os.path.join(
+        blender.utils.resource_path("LOCAL"), "scripts", "addons_core", "bl_pkg", "cli", "blender_ext.py"
+    )
     res = subprocess.run([sys.executable, tool, "validate", ROOT], capture_output=True, text=True)
     assert res.returncode == 0, res.stdout + res.stderr
 
@@ -42,7 +43,9 @@ def test_load_analyses_stores_and_survives_save_without_the_source(fresh, tmp_pa
     want = fit_material(compute_profiles(read_merl(src)))
     assert state.fit_mu_slope == pytest.approx(want["mu_slope"], rel=1e-5)
     assert state.fit_sigma2 == pytest.approx(want["sigma2"], rel=1e-5)
-    assert state.mu_slope == pytest.approx(min(max(want["mu_slope"], -2), 0), abs=1e-6)  # sliders start at the fit (gold: below -1)
+    assert state.mu_slope == pytest.approx(
+        min(max(want["mu_slope"], -2), 0), abs=1e-6
+    )  # sliders start at the fit (gold: below -1)
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     os.unlink(src)

@@ -5,16 +5,38 @@ import math
 import numpy as np
 import pytest
 
-from addon.core.fits import (KNOT_START, LAMBERT_VARIANCE, correlation_curve, energy_curve, fit_correlation,
-                             fit_energy, fit_energy_joint, fit_material, fit_mean_slope, fit_set, fit_variance)
+from addon.core.fits import (
+    KNOT_START,
+    LAMBERT_VARIANCE,
+    correlation_curve,
+    energy_curve,
+    fit_correlation,
+    fit_energy,
+    fit_energy_joint,
+    fit_material,
+    fit_mean_slope,
+    fit_set,
+    fit_variance,
+)
 from addon.core.profiles import Profiles
 
 T = np.radians(np.arange(90.0))
 IN = T <= math.radians(85.0) + 1e-12
 
 
-def synthetic(alpha_b=0.3, theta0=math.radians(38), theta1=math.radians(70), alpha1=1.1, m1=4.0, mu=-0.6,
-              sigma2=0.2, colour=(1.0, 0.8, 0.5), noise=0.0, seed=0, name="synthetic"):
+def synthetic(
+    alpha_b=0.3,
+    theta0=math.radians(38),
+    theta1=math.radians(70),
+    alpha1=1.1,
+    m1=4.0,
+    mu=-0.6,
+    sigma2=0.2,
+    colour=(1.0, 0.8, 0.5),
+    noise=0.0,
+    seed=0,
+    name="synthetic",
+):
     """Profiles built exactly from the paper's profile models (plus optional noise)."""
     rng = np.random.default_rng(seed)
     base = energy_curve(T, alpha_b, theta0, theta1, alpha1, m1)
@@ -112,8 +134,10 @@ def test_joint_fit_of_one_material_equals_its_own_fit():
 
 
 def test_joint_fit_recovers_shared_knots():
-    series = [(T, energy_curve(T, ab, math.radians(40), math.radians(71), a1, m))
-              for ab, a1, m in ((0.1, 0.5, 1.0), (0.4, 1.5, 6.0), (0.05, 0.08, 0.3))]
+    series = [
+        (T, energy_curve(T, ab, math.radians(40), math.radians(71), a1, m))
+        for ab, a1, m in ((0.1, 0.5, 1.0), (0.4, 1.5, 6.0), (0.05, 0.08, 0.3))
+    ]
     t0, t1, per = fit_energy_joint(series)
     assert math.degrees(t0) == pytest.approx(40, abs=1e-3) and math.degrees(t1) == pytest.approx(71, abs=1e-3)
     assert per[1]["alpha1"] == pytest.approx(1.5, rel=1e-6)
@@ -155,7 +179,11 @@ def test_material_without_specular_energy_does_not_crash():
 def test_fit_set_has_joint_and_correlation_only_for_two_or_more():
     one = fit_set({"a": synthetic()})
     assert set(one) == {"materials"}
-    many = fit_set({f"m{i}": synthetic(mu=-0.2 - 0.15 * i, sigma2=correlation_curve(-0.2 - 0.15 * i, 0.4), seed=i)
-                    for i in range(4)})
+    many = fit_set(
+        {
+            f"m{i}": synthetic(mu=-0.2 - 0.15 * i, sigma2=correlation_curve(-0.2 - 0.15 * i, 0.4), seed=i)
+            for i in range(4)
+        }
+    )
     assert set(many) == {"materials", "joint", "correlation"}
     assert many["correlation"]["a"] == pytest.approx(0.4, abs=0.05)

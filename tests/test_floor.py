@@ -28,8 +28,9 @@ def slice_cells():
     cells = np.asarray(get_operator(np.array([DIFFUSE_VIEW]), memo=False).view(0)[0])
     ith, rest = np.divmod(cells, 90 * 180)
     itd, ipd = np.divmod(rest, 180)
-    wi, wo = directions_from_half_diff(((ith + 0.5) / 90) ** 2 * math.pi / 2, (itd + 0.5) / 90 * math.pi / 2,
-                                       (ipd + 0.5) / 180 * math.pi)
+    wi, wo = directions_from_half_diff(
+        ((ith + 0.5) / 90) ** 2 * math.pi / 2, (itd + 0.5) / 90 * math.pi / 2, (ipd + 0.5) / 180 * math.pi
+    )
     lowest = np.minimum(wi[:, 2], wo[:, 2])
     inner = lowest >= math.cos(ROBUST_MAX_ANGLE) + 1e-9
     grazing = lowest < math.cos(math.radians(80.0))
@@ -45,7 +46,7 @@ def test_one_low_cell_or_a_dark_grazing_band_sets_the_minimum_not_the_robust_flo
     cells, inner, grazing = slice_cells
     t = _constant(0.3)
     t.rho[:, cells[inner][len(cells[inner]) // 2]] = 0.001  # one low cell in the well-measured part
-    t.rho[:, cells[grazing & t.valid[0, cells]]] = 0.0      # and every grazing cell dark
+    t.rho[:, cells[grazing & t.valid[0, cells]]] = 0.0  # and every grazing cell dark
     np.testing.assert_allclose(diffuse_floor(t), 0.0)
     np.testing.assert_allclose(diffuse_floor(t, method="robust"), 0.3)
 
@@ -80,8 +81,14 @@ def test_unknown_floor_is_refused():
 
 def test_cli_floor_option(tmp_path):
     def run(*args):
-        return subprocess.run([sys.executable, "-m", "addon", *args], cwd=ROOT, capture_output=True, text=True,
-                              env=dict(os.environ), timeout=600)
+        return subprocess.run(
+            [sys.executable, "-m", "addon", *args],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            env=dict(os.environ),
+            timeout=600,
+        )
 
     kd = {}
     for floor in ("min", "robust"):

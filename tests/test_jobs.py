@@ -119,7 +119,9 @@ def test_progress_reaches_the_status_bar_and_the_result_is_written_back(job_clas
     assert 500 in ctx.window_manager.progress
     assert any(s and "Testing 50 %" in s and "Esc to cancel" in s for s in ctx.workspace.status)
     # The status bar is rewritten only when its text changes (each write is a redraw).
-    assert len(ctx.workspace.status) < 20 and all(a != b for a, b in zip(ctx.workspace.status, ctx.workspace.status[1:]))
+    assert len(ctx.workspace.status) < 20 and all(
+        a != b for a, b in zip(ctx.workspace.status, ctx.workspace.status[1:])
+    )
     gate.set()
     assert _drive(op, ctx) == {"FINISHED"}
     assert op.finished_with == "done"
@@ -142,9 +144,17 @@ def test_every_event_but_esc_passes_through_and_right_click_does_not_cancel(job_
     op._mat_name = "M"
     op.invoke(ctx, _Event("NONE"))
     assert jobs.running() == [("Testing", "M")]
-    for kind, value in (("RIGHTMOUSE", "PRESS"), ("RIGHTMOUSE", "RELEASE"), ("MOUSEMOVE", "NOTHING"),
-                        ("MIDDLEMOUSE", "PRESS"), ("N", "PRESS"), ("LEFTMOUSE", "CLICK"), ("WHEELUPMOUSE", "PRESS"),
-                        ("ESC", "RELEASE"), ("TIMER", "NOTHING")):
+    for kind, value in (
+        ("RIGHTMOUSE", "PRESS"),
+        ("RIGHTMOUSE", "RELEASE"),
+        ("MOUSEMOVE", "NOTHING"),
+        ("MIDDLEMOUSE", "PRESS"),
+        ("N", "PRESS"),
+        ("LEFTMOUSE", "CLICK"),
+        ("WHEELUPMOUSE", "PRESS"),
+        ("ESC", "RELEASE"),
+        ("TIMER", "NOTHING"),
+    ):
         assert op.modal(ctx, _Event(kind, value)) == {"PASS_THROUGH"}, kind
     assert not op._cancel.is_set()
     gate.set()
@@ -196,8 +206,10 @@ def test_esc_cancels_and_changes_nothing(job_class):
     assert not op._thread.is_alive()  # the worker stopped at its next progress report
 
 
-@pytest.mark.parametrize("exc, expect", [(ValueError("x.binary: too short"), "x.binary: too short"),
-                                         (RuntimeError("boom"), "RuntimeError: boom")])
+@pytest.mark.parametrize(
+    "exc, expect",
+    [(ValueError("x.binary: too short"), "x.binary: too short"), (RuntimeError("boom"), "RuntimeError: boom")],
+)
 def test_errors_in_the_worker_become_reports(job_class, exc, expect):
     def work(report_progress):
         raise exc
@@ -301,10 +313,18 @@ def test_a_large_result_comes_back_whole_with_its_arrays_out_of_band(job_class):
     import numpy as np
 
     rng = np.random.default_rng(7)
-    big = rng.standard_normal((3, 1_458_000))            # one MERL table's worth of float64
-    strided = rng.standard_normal((50, 40))[:, ::3]      # not contiguous: pickled in band
-    parts = {"big": big, "f32": big[0].astype(np.float32), "strided": strided, "empty": np.zeros((0, 3)),
-             "mask": big[1] > 0, "scalar": np.float64(2.5), "text": "kd", "nested": [big[2, :5], (1, 2)]}
+    big = rng.standard_normal((3, 1_458_000))  # one MERL table's worth of float64
+    strided = rng.standard_normal((50, 40))[:, ::3]  # not contiguous: pickled in band
+    parts = {
+        "big": big,
+        "f32": big[0].astype(np.float32),
+        "strided": strided,
+        "empty": np.zeros((0, 3)),
+        "mask": big[1] > 0,
+        "scalar": np.float64(2.5),
+        "text": "kd",
+        "nested": [big[2, :5], (1, 2)],
+    }
 
     def work(report_progress):
         report_progress(1, 2)

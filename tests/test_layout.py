@@ -54,11 +54,14 @@ def _imported_modules(path):
 
 def test_only_the_entry_point_imports_the_cli():
     """cli.py parses arguments and calls the tools; a tool importing it back makes a cycle."""
-    offenders = [f"{os.path.relpath(p, ROOT)}:{line}"
-                 for p in _python_files("addon", "operators", "samples")
-                 if os.path.relpath(p, ROOT) not in (os.path.join("addon", "__main__.py"),
-                                                     os.path.join("addon", "tools", "cli.py"))
-                 for mod, line in _imported_modules(p) if mod == "addon.tools.cli"]
+    offenders = [
+        f"{os.path.relpath(p, ROOT)}:{line}"
+        for p in _python_files("addon", "operators", "samples")
+        if os.path.relpath(p, ROOT)
+        not in (os.path.join("addon", "__main__.py"), os.path.join("addon", "tools", "cli.py"))
+        for mod, line in _imported_modules(p)
+        if mod == "addon.tools.cli"
+    ]
     assert offenders == []
 
 
@@ -70,7 +73,7 @@ def test_the_shaders_clamp_the_variance_like_the_engine():
 
     for name in ("brdf_moments_model.osl", "brdf_moments_table.osl"):
         text = open(os.path.join(ROOT, "addon", "shaders", name), encoding="utf-8").read()
-        (lo, hi), = re.findall(r"clamp\(Sigma2, ([0-9.e+-]+), ([0-9.e+-]+)\)", text)
+        ((lo, hi),) = re.findall(r"clamp\(Sigma2, ([0-9.e+-]+), ([0-9.e+-]+)\)", text)
         assert float(lo) == MIN_SIGMA2 and abs(float(hi) - LAMBERT_VARIANCE) < 1e-15, name
 
 
@@ -102,18 +105,30 @@ def test_each_side_imports_only_what_it_may():
     only the figure writer (Export > Plots)."""
     bad = []
     for p in _python_files(os.path.join("addon", "core")):
-        bad += [f"core {os.path.relpath(p, ROOT)}:{line} {m}" for m, line in _imported_modules(p)
-                if _within(m, BLENDER_SIDE + ("addon.tools",) + BPY)]
+        bad += [
+            f"core {os.path.relpath(p, ROOT)}:{line} {m}"
+            for m, line in _imported_modules(p)
+            if _within(m, BLENDER_SIDE + ("addon.tools",) + BPY)
+        ]
     tools = list(_python_files(os.path.join("addon", "tools")))
     for p in tools:
-        bad += [f"tool {os.path.relpath(p, ROOT)}:{line} {m}" for m, line in _module_level_imports(p)
-                if _within(m, BLENDER_SIDE + BPY)]
+        bad += [
+            f"tool {os.path.relpath(p, ROOT)}:{line} {m}"
+            for m, line in _module_level_imports(p)
+            if _within(m, BLENDER_SIDE + BPY)
+        ]
         if os.path.basename(p) not in BRIDGES:
-            bad += [f"tool {os.path.relpath(p, ROOT)}:{line} {m}" for m, line in _imported_modules(p)
-                    if _within(m, BLENDER_SIDE + BPY)]
+            bad += [
+                f"tool {os.path.relpath(p, ROOT)}:{line} {m}"
+                for m, line in _imported_modules(p)
+                if _within(m, BLENDER_SIDE + BPY)
+            ]
     side = list(_python_files(os.path.join("addon", "blender"))) + list(_python_files("operators"))
     for p in side:
-        bad += [f"blender {os.path.relpath(p, ROOT)}:{line} {m}" for m, line in _imported_modules(p)
-                if _within(m, ("addon.tools",)) and not _within(m, ("addon.tools.plots",))]
+        bad += [
+            f"blender {os.path.relpath(p, ROOT)}:{line} {m}"
+            for m, line in _imported_modules(p)
+            if _within(m, ("addon.tools",)) and not _within(m, ("addon.tools.plots",))
+        ]
     assert bad == []
     assert len(tools) >= 8 and len(side) >= 15  # the scan saw both sides

@@ -107,7 +107,7 @@ def test_choice_keeps_the_bake_unbiased_and_lowers_its_noise(sample_table, monke
 
     chosen, mean = spread_and_mean()
     assert mean == pytest.approx(ref_mean, rel=0.015)
-    monkeypatch.setattr(lights, "POWER_SHARE", 1.0)        # clusters by power alone: the old sampler
+    monkeypatch.setattr(lights, "POWER_SHARE", 1.0)  # clusters by power alone: the old sampler
     by_power, mean = spread_and_mean()
     assert mean == pytest.approx(ref_mean, rel=0.015)
     assert chosen < bound * by_power, (chosen, by_power)

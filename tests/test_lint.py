@@ -21,6 +21,24 @@ def test_ruff_check_finds_nothing():
         if os.environ.get("BRDF_MOMENTS_REQUIRE_LANES"):
             pytest.fail("ruff is not installed (scripts/setup.sh installs it from requirements.txt)")
         pytest.skip("no ruff (scripts/setup.sh installs it from requirements.txt)")
-    res = subprocess.run([ruff, "check", "--no-cache", "--output-format", "concise", "."], cwd=ROOT,
-                         capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [ruff, "check", "--no-cache", "--output-format", "concise", "."],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, (res.stdout + res.stderr)[-6000:]
+
+
+def test_ruff_format_changes_nothing():
+    """The code is kept as ``ruff format`` writes it (settings in pyproject.toml)."""
+    ruff = _ruff()
+    if ruff is None:
+        if os.environ.get("BRDF_MOMENTS_REQUIRE_LANES"):
+            pytest.fail("ruff is not installed (scripts/setup.sh installs it from requirements.txt)")
+        pytest.skip("no ruff (scripts/setup.sh installs it from requirements.txt)")
+    res = subprocess.run(
+        [ruff, "format", "--check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
     assert res.returncode == 0, (res.stdout + res.stderr)[-6000:]

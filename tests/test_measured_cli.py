@@ -18,8 +18,14 @@ NIELSEN = os.path.join(samples.MEASURED_DIR, "nbrdf-nielsen.npz")
 
 
 def run(*args):
-    return subprocess.run([sys.executable, "-m", "addon", *args], cwd=ROOT, capture_output=True, text=True,
-                          env=dict(os.environ), timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "addon", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env=dict(os.environ),
+        timeout=600,
+    )
 
 
 def test_profiles_of_a_network_equal_those_of_its_decoded_table(tmp_path):
@@ -34,8 +40,14 @@ def test_profiles_of_a_network_equal_those_of_its_decoded_table(tmp_path):
     np.testing.assert_allclose(got["avg"]["alpha"], ref["avg"]["alpha"], rtol=1e-9)
 
 
-@pytest.mark.parametrize("cmd", [["profiles", RGL, "--out", "{tmp}/p.json"], ["fit", RGL, "--out", "{tmp}/f.json"],
-                                 ["edit", RGL, "--out", "{tmp}/e.binary"]])
+@pytest.mark.parametrize(
+    "cmd",
+    [
+        ["profiles", RGL, "--out", "{tmp}/p.json"],
+        ["fit", RGL, "--out", "{tmp}/f.json"],
+        ["edit", RGL, "--out", "{tmp}/e.binary"],
+    ],
+)
 def test_a_set_without_a_material_is_a_one_line_error_listing_names(tmp_path, cmd):
     res = run(*[c.format(tmp=tmp_path) for c in cmd])
     assert res.returncode == 2
@@ -44,13 +56,18 @@ def test_a_set_without_a_material_is_a_one_line_error_listing_names(tmp_path, cm
     assert "Traceback" not in res.stderr and not os.listdir(tmp_path)
 
 
-@pytest.mark.parametrize("content,fault", [(b"", "not a valid Neural-BRDF weights file"), (b"PK\x03\x04junk", "not a valid Neural-BRDF weights file")])
+@pytest.mark.parametrize(
+    "content,fault",
+    [(b"", "not a valid Neural-BRDF weights file"), (b"PK\x03\x04junk", "not a valid Neural-BRDF weights file")],
+)
 def test_bad_weights_files_exit_2_naming_file_and_fault(tmp_path, content, fault):
     bad = tmp_path / "bad.npz"
     bad.write_bytes(content)
-    for cmd in (["profiles", str(bad), "--out", str(tmp_path / "p.json")],
-                ["edit", f"{bad}:x", "--out", str(tmp_path / "e.binary")],
-                ["analyze", str(bad), "--out", str(tmp_path / "out")]):
+    for cmd in (
+        ["profiles", str(bad), "--out", str(tmp_path / "p.json")],
+        ["edit", f"{bad}:x", "--out", str(tmp_path / "e.binary")],
+        ["analyze", str(bad), "--out", str(tmp_path / "out")],
+    ):
         res = run(*cmd)
         assert res.returncode == 2, res
         assert str(bad) in res.stderr and fault in res.stderr and "Traceback" not in res.stderr
@@ -90,8 +107,17 @@ def test_fit_and_analyze_a_folder_of_npy_and_two_sets_with_a_shared_name(tmp_pat
         for key, leaf in (("W1", "fc1"), ("W2", "fc2"), ("W3", "fc3"), ("b1", "b1"), ("b2", "b2"), ("b3", "b3")):
             np.save(folder / f"{name}_{leaf}.npy", getattr(net, key))
     out = tmp_path / "out"
-    res = run("analyze", str(folder), f"{NIELSEN}:cardboard", f"{NIELSEN}:greencloth", "--out", str(out),
-              "--no-plots", "--jobs", "1")
+    res = run(
+        "analyze",
+        str(folder),
+        f"{NIELSEN}:cardboard",
+        f"{NIELSEN}:greencloth",
+        "--out",
+        str(out),
+        "--no-plots",
+        "--jobs",
+        "1",
+    )
     assert res.returncode == 0, res.stderr
     fits = json.loads((out / "fits.json").read_text())["materials"]
     # Both cardboards are kept, told apart by their set's name.

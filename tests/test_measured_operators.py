@@ -35,7 +35,9 @@ def test_load_a_material_of_a_set_analyses_the_network(material, tmp_path):
     src = tmp_path / "nielsen.npz"
     shutil.copy(NIELSEN, src)
     before = _sha(src)
-    assert bpy.ops.brdf_moments.load_merl(filepath=str(src), network="paintedmetal", material="Measured") == {"FINISHED"}
+    assert bpy.ops.brdf_moments.load_merl(filepath=str(src), network="paintedmetal", material="Measured") == {
+        "FINISHED"
+    }
     state = mat.brdf_moments
     assert state.analysed and state.source_path == f"{src}:paintedmetal"
     ref = fit_material(compute_profiles(nbrdf.decode(nbrdf.load_network(NIELSEN, "paintedmetal"))))
@@ -59,8 +61,9 @@ def test_a_set_needs_a_choice_and_a_single_network_does_not(material, tmp_path, 
     for key, leaf in (("W1", "fc1"), ("W2", "fc2"), ("W3", "fc3"), ("b1", "b1"), ("b2", "b2"), ("b3", "b3")):
         np.save(folder / f"satin_white_{leaf}.npy", getattr(net, key))
     # Picking one .npy of the export stands for its material in that folder.
-    assert bpy.ops.brdf_moments.load_merl(filepath=str(folder / "satin_white_fc2.npy"), material="Measured") \
-        == {"FINISHED"}
+    assert bpy.ops.brdf_moments.load_merl(filepath=str(folder / "satin_white_fc2.npy"), material="Measured") == {
+        "FINISHED"
+    }
     assert mat.brdf_moments.source_path == f"{folder}:satin_white"
 
 

@@ -8,8 +8,19 @@ import numpy as np
 import pytest
 
 from addon.core.geometry import directions_from_half_diff, view_centred
-from addon.core.merl import (CHANNEL_SCALES, FILE_BYTES, N_CELLS, MerlError, MerlTable, cell_indices,
-                             lookup, lookup_angles, read_merl, tabulate, write_merl)
+from addon.core.merl import (
+    CHANNEL_SCALES,
+    FILE_BYTES,
+    N_CELLS,
+    MerlError,
+    MerlTable,
+    cell_indices,
+    lookup,
+    lookup_angles,
+    read_merl,
+    tabulate,
+    write_merl,
+)
 
 
 def _write_raw(path, dims=(90, 90, 180), values=None, extra=b""):
@@ -56,14 +67,17 @@ def test_read_applies_channel_scales_and_masks_negatives(tmp_path):
     np.testing.assert_allclose(CHANNEL_SCALES, [1 / 1500, 1.15 / 1500, 1.66 / 1500])
 
 
-@pytest.mark.parametrize("case, fault", [
-    ("truncated", "truncated"),
-    ("oversized", "oversized"),
-    ("header", "wrong header"),
-    ("tiny", "too short"),
-    ("nan", "NaN"),
-    ("inf", "inf"),
-])
+@pytest.mark.parametrize(
+    "case, fault",
+    [
+        ("truncated", "truncated"),
+        ("oversized", "oversized"),
+        ("header", "wrong header"),
+        ("tiny", "too short"),
+        ("nan", "NaN"),
+        ("inf", "inf"),
+    ],
+)
 def test_bad_files_are_refused_naming_file_and_fault(tmp_path, case, fault):
     path = tmp_path / f"bad-{case}.binary"
     values = np.full(3 * N_CELLS, 10.0)

@@ -54,9 +54,17 @@ def _cell_centre_pairs(cells, seed):
     return directions_from_half_diff(th, td, pd, phi_h)
 
 
-@pytest.mark.parametrize("source,name", [(RGL, "spectralon"), (RGL, "satin_gold"), (RGL, "ilm_l3_37_metallic"),
-                                         (RGL, "irid_flake_paint1"), (NIELSEN, "paintedmetal"),
-                                         (NIELSEN, "greencloth")])
+@pytest.mark.parametrize(
+    "source,name",
+    [
+        (RGL, "spectralon"),
+        (RGL, "satin_gold"),
+        (RGL, "ilm_l3_37_metallic"),
+        (RGL, "irid_flake_paint1"),
+        (NIELSEN, "paintedmetal"),
+        (NIELSEN, "greencloth"),
+    ],
+)
 def test_decoder_matches_float64_reference(source, name):
     net = nbrdf.load_network(source, name)
     table = nbrdf.decode(net)
@@ -121,8 +129,11 @@ def test_single_npz_npy_folder_and_set_agree(tmp_path):
 @pytest.mark.parametrize("layout", ["save_weights", "model", "keras3"])
 def test_keras_layouts_give_the_layers_in_chain_order(layout):
     net = nbrdf.load_network(RGL, "satin_blue")
-    names = {"save_weights": "dense_{n}/dense_{n}/{v}:0", "model": "model_weights/dense_{n}/dense_{n}/{v}:0",
-             "keras3": "layers/dense_{n}/vars/{i}"}[layout]
+    names = {
+        "save_weights": "dense_{n}/dense_{n}/{v}:0",
+        "model": "model_weights/dense_{n}/dense_{n}/{v}:0",
+        "keras3": "layers/dense_{n}/vars/{i}",
+    }[layout]
     datasets = {}
     # Layer numbers that do not follow the order (Keras numbers them per session).
     for i, n in zip((1, 2, 3), (7, 5, 9)):
@@ -141,6 +152,7 @@ def test_keras_layouts_give_the_layers_in_chain_order(layout):
 
 def test_keras_h5(tmp_path):
     import h5py  # in requirements.txt: the Keras path is tested for real, never skipped
+
     net = nbrdf.load_network(RGL, "satin_blue")
     path = tmp_path / "satin_blue.h5"
     # The layout Keras' save_weights writes: a group per layer, layer names numbered freely.

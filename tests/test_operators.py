@@ -82,16 +82,21 @@ def test_apply_energy_strength_and_export_everything(analysed, tmp_path):
     kd = np.asarray(compute_profiles(orig).kd)[:, None]  # the stored copy is float32
     # Energy-only edits are exact: the specular part halves, kd stays.
     on = orig.valid
-    np.testing.assert_allclose(edited.rho[on], (np.minimum(orig.rho, kd) + 0.5 * np.maximum(orig.rho - kd, 0))[on],
-                               rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(
+        edited.rho[on], (np.minimum(orig.rho, kd) + 0.5 * np.maximum(orig.rho - kd, 0))[on], rtol=1e-12, atol=1e-15
+    )
     assert max(state.max_albedo) > 0 and state.edited_profiles() is not None
     out = tmp_path / "exports"
     out.mkdir()
     for what in ("TABLE", "PROFILES", "PLOTS"):
         assert bpy.ops.brdf_moments.export(what=what, directory=str(out), material="Rough") == {"FINISHED"}
     names = sorted(os.listdir(out))
-    assert names == ["Rough_edited.binary", "Rough_edited_profiles.png", "Rough_measured_profiles.png",
-                     "Rough_profiles.json"]
+    assert names == [
+        "Rough_edited.binary",
+        "Rough_edited_profiles.png",
+        "Rough_measured_profiles.png",
+        "Rough_profiles.json",
+    ]
     np.testing.assert_array_equal(read_merl(out / "Rough_edited.binary").rho, edited.rho)
     data = json.loads((out / "Rough_profiles.json").read_text())
     assert set(data) == {"material", "source", "measured", "edited"}
@@ -109,10 +114,13 @@ def test_export_names_stay_inside_the_folder(analysed, tmp_path):
     assert not any(p.name.endswith("_profiles.json") for p in tmp_path.parent.iterdir())
 
 
-@pytest.mark.parametrize("setup, message", [
-    ("unanalysed", "load and analyse a MERL file first"),
-    ("source gone", "source MERL file is missing"),
-])
+@pytest.mark.parametrize(
+    "setup, message",
+    [
+        ("unanalysed", "load and analyse a MERL file first"),
+        ("source gone", "source MERL file is missing"),
+    ],
+)
 def test_apply_errors_are_reports_not_tracebacks(analysed, setup, message):
     bpy, mat, src = analysed
     if setup == "unanalysed":
@@ -143,16 +151,20 @@ class _Recorder:
         if name in ("row", "column", "box", "grid_flow", "split"):
             return lambda *a, **k: _Recorder(self.bpy, self.log)
         if name == "prop":
+
             def prop(owner, attr, **_):
                 assert attr in owner.bl_rna.properties, attr
                 self.log.append(("prop", attr))
+
             return prop
         if name == "operator":
+
             def operator(idname, **_):
                 group, op = idname.split(".")
                 assert hasattr(getattr(self.bpy.ops, group), op) and getattr(getattr(self.bpy.ops, group), op).idname()
                 self.log.append(("operator", idname))
                 return type("Props", (), {})()
+
             return operator
         return lambda *a, **k: self.log.append((name, a, k))
 
@@ -190,8 +202,9 @@ def test_build_preview_baked_renders_original_and_edited(analysed, tmp_path):
     state = mat.brdf_moments
     state.sigma2 = min(state.fit_sigma2 * 1.5, 0.8)
     out = tmp_path / "preview.png"
-    assert bpy.ops.brdf_moments.build_preview(material="Rough", path="BAKED", size=24, samples=4,
-                                              render_to=str(out)) == {"FINISHED"}
+    assert bpy.ops.brdf_moments.build_preview(
+        material="Rough", path="BAKED", size=24, samples=4, render_to=str(out)
+    ) == {"FINISHED"}
     scene = bpy.data.scenes["BRDF Moments Preview"]
     spheres = [o for o in scene.objects if o.type == "MESH"]
     assert len(spheres) == 2
@@ -210,16 +223,20 @@ def test_build_preview_baked_renders_original_and_edited(analysed, tmp_path):
 
     layout = sphere_layout(48, 24, 2)
     mask = layout.interior_mask()
-    mask[:11] = False                       # rows under the labels (7 px glyphs from row 1, outlined)
+    mask[:11] = False  # rows under the labels (7 px glyphs from row 1, outlined)
     for k, o in enumerate(sorted(spheres, key=lambda o: o.location.x)):
         bake = o.material_slots[0].material.node_tree.nodes["BRDFM Bake"].image
         tex = np.empty(bake.size[0] * bake.size[1] * 4, np.float32)
         bake.pixels.foreach_get(tex)
         tex = tex.reshape(bake.size[1], bake.size[0], 4)[::-1]
         left = layout.lefts[k]
-        sub = mask[layout.top:layout.top + layout.diameter, left:left + layout.diameter]
-        np.testing.assert_allclose(px[layout.top:layout.top + layout.diameter, left:left + layout.diameter][sub, :3],
-                                   tex[sub, :3], rtol=1e-5, atol=1e-6)
+        sub = mask[layout.top : layout.top + layout.diameter, left : left + layout.diameter]
+        np.testing.assert_allclose(
+            px[layout.top : layout.top + layout.diameter, left : left + layout.diameter][sub, :3],
+            tex[sub, :3],
+            rtol=1e-5,
+            atol=1e-6,
+        )
 
 
 def test_slider_drag_updates_the_osl_preview_without_resynthesis(analysed, tmp_path):
@@ -232,8 +249,11 @@ def test_slider_drag_updates_the_osl_preview_without_resynthesis(analysed, tmp_p
     assert bpy.ops.brdf_moments.build_preview(material="Rough", path="OSL", mode="MODEL", size=16) == {"FINISHED"}
     edited = bpy.data.materials[state.preview_material]
     node = edited.node_tree.nodes["BRDFM OSL"]
-    tables_before = set(os.listdir(os.path.join(os.environ["BRDF_MOMENTS_CACHE"], "edits"))) \
-        if os.path.isdir(os.path.join(os.environ["BRDF_MOMENTS_CACHE"], "edits")) else set()
+    tables_before = (
+        set(os.listdir(os.path.join(os.environ["BRDF_MOMENTS_CACHE"], "edits")))
+        if os.path.isdir(os.path.join(os.environ["BRDF_MOMENTS_CACHE"], "edits"))
+        else set()
+    )
     state.sigma2 = 0.2
     assert node.inputs["Sigma2"].default_value == pytest.approx(0.2)
     state.mu_slope = -0.6
@@ -255,9 +275,9 @@ def test_the_reachable_region_is_stored_drawn_and_is_what_apply_clamps_to(analys
     state = mat.brdf_moments
     prof = compute_profiles(read_merl(src))
     fit = fit_material(prof)
-    want = reachable_region(prof, fit)               # computed here, independently of the operator
+    want = reachable_region(prof, fit)  # computed here, independently of the operator
     got = state.region()
-    assert type(got).__name__ == ReachableRegion.__name__   # the extension's own copy of the class
+    assert type(got).__name__ == ReachableRegion.__name__  # the extension's own copy of the class
     np.testing.assert_allclose(got.sigma2, want.sigma2, rtol=1e-12)
     np.testing.assert_allclose(got.mu_min, want.mu_min, rtol=1e-12, equal_nan=True)
     np.testing.assert_allclose(got.mu_max, want.mu_max, rtol=1e-12, equal_nan=True)
@@ -267,7 +287,7 @@ def test_the_reachable_region_is_stored_drawn_and_is_what_apply_clamps_to(analys
     img = bpy.data.images["BRDF Moments region: Rough"]
     px = np.array(img.pixels[:]).reshape(img.size[1], img.size[0], 4)[..., :3]
     filled = np.abs(px - np.array([0.16, 0.16, 0.16])).max(axis=-1) > 0.05
-    assert 0.05 < filled.mean() < 0.9                # the region is painted, not the whole frame
+    assert 0.05 < filled.mean() < 0.9  # the region is painted, not the whole frame
     # At the fit: inside, nothing to say.
     point = state.requested_point()
     assert point is None or point[0] == point[1]

@@ -15,8 +15,12 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def test_extension_zip_bundles_scipy_and_leaves_out_tests_and_outputs(tmp_path):
-    out = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "package.py"), str(tmp_path)],
-                         capture_output=True, text=True, check=True).stdout.split()
+    out = subprocess.run(
+        [sys.executable, os.path.join(ROOT, "scripts", "package.py"), str(tmp_path)],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
     ext, legacy = out
     with open(os.path.join(ROOT, "blender_manifest.toml"), "rb") as fh:
         manifest = tomllib.load(fh)
@@ -25,17 +29,24 @@ def test_extension_zip_bundles_scipy_and_leaves_out_tests_and_outputs(tmp_path):
         assert wheel.lstrip("./") in names
     assert any(os.path.basename(w).startswith("scipy-") and "x86_64" in w for w in manifest["wheels"])
     assert "blender_manifest.toml" in names and "__init__.py" in names and "operators/apply_edit.py" in names
-    bad = [n for n in names if n.startswith(("tests/", "out/", ".venv/", ".cache/", ".git/", "scripts/", "dist/"))
-           or n.endswith((".binary", ".pyc")) or "__pycache__" in n or ".hypothesis" in n]
+    bad = [
+        n
+        for n in names
+        if n.startswith(("tests/", "out/", ".venv/", ".cache/", ".git/", "scripts/", "dist/"))
+        or n.endswith((".binary", ".pyc"))
+        or "__pycache__" in n
+        or ".hypothesis" in n
+    ]
     assert bad == []
     # the allow-list: the manifest, the wheels and [build] paths, nothing else (no bench*.py,
     # no samples, no dot-files or tool settings)
-    assert sorted(names) == sorted(["blender_manifest.toml", *(w.lstrip("./") for w in manifest["wheels"]),
-                                    *manifest["build"]["paths"]])
+    assert sorted(names) == sorted(
+        ["blender_manifest.toml", *(w.lstrip("./") for w in manifest["wheels"]), *manifest["build"]["paths"]]
+    )
     assert not [n for n in names if "bench" in n or n.startswith(("samples/", ".")) or n == "pyproject.toml"]
     legacy_names = zipfile.ZipFile(legacy).namelist()
     code = sorted(n for n in names if n.endswith(".py"))
-    assert sorted(n[len("brdf_moments/"):] for n in legacy_names if n.endswith(".py")) == code
+    assert sorted(n[len("brdf_moments/") :] for n in legacy_names if n.endswith(".py")) == code
     assert all(n.startswith("brdf_moments/") for n in legacy_names)
     # Blender 3.4-4.1 read bl_info from the legacy zip's __init__.py.
     init = zipfile.ZipFile(legacy).read("brdf_moments/__init__.py").decode()
@@ -82,11 +93,22 @@ def test_only_the_extension_ships(tmp_path):
     assert "paths_exclude_pattern" not in manifest["build"]
     code = {p for p in paths if p.endswith(".py")}
     assert code == _runtime_modules()
-    shaders = {os.path.relpath(os.path.join(d, f), ROOT).replace(os.sep, "/")
-               for d, _, files in os.walk(os.path.join(ROOT, "addon", "shaders")) for f in files}
+    shaders = {
+        os.path.relpath(os.path.join(d, f), ROOT).replace(os.sep, "/")
+        for d, _, files in os.walk(os.path.join(ROOT, "addon", "shaders"))
+        for f in files
+    }
     assert set(paths) - code == shaders
-    for headless in ("addon/tools/cli.py", "addon/tools/analyze.py", "addon/__main__.py", "addon/tools/render_command.py",
-                     "addon/tools/bench.py", "addon/tools/bench_preview.py", "addon/script_args.py", "samples/demo.py"):
+    for headless in (
+        "addon/tools/cli.py",
+        "addon/tools/analyze.py",
+        "addon/__main__.py",
+        "addon/tools/render_command.py",
+        "addon/tools/bench.py",
+        "addon/tools/bench_preview.py",
+        "addon/script_args.py",
+        "samples/demo.py",
+    ):
         assert headless not in paths
 
 
@@ -112,22 +134,33 @@ def test_stray_folders_and_bench_files_never_ship(tmp_path):
     (src / "addon" / "bench_new.py").write_text("# a new benchmark\n")
     (src / "out").mkdir()
     (src / "out" / "edited.binary").write_bytes(b"\0" * 64)
-    out = subprocess.run([sys.executable, str(src / "scripts" / "package.py"), str(tmp_path / "dist")],
-                         capture_output=True, text=True, check=True).stdout.split()
+    out = subprocess.run(
+        [sys.executable, str(src / "scripts" / "package.py"), str(tmp_path / "dist")],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
     ext, legacy = out
     names = zipfile.ZipFile(ext).namelist()
     assert len(names) == len(set(names))  # the builder's second copy of the wheel is dropped
-    shipped = [n for n in names + zipfile.ZipFile(legacy).namelist()
-               if "stray" in n or "bench" in n or n.startswith(("out/", "brdf_moments/out/"))]
+    shipped = [
+        n
+        for n in names + zipfile.ZipFile(legacy).namelist()
+        if "stray" in n or "bench" in n or n.startswith(("out/", "brdf_moments/out/"))
+    ]
     assert shipped == []
-    assert "operators/apply_edit.py" in names and "brdf_moments/operators/apply_edit.py" in zipfile.ZipFile(legacy).namelist()
+    assert (
+        "operators/apply_edit.py" in names
+        and "brdf_moments/operators/apply_edit.py" in zipfile.ZipFile(legacy).namelist()
+    )
 
 
 def test_the_legacy_zip_is_built_without_the_scipy_wheel(tmp_path):
     src = tmp_path / "src"
     _repo_copy(src, wheels=False)
-    res = subprocess.run([sys.executable, str(src / "scripts" / "package.py"), str(tmp_path / "dist")],
-                         capture_output=True, text=True)
+    res = subprocess.run(
+        [sys.executable, str(src / "scripts" / "package.py"), str(tmp_path / "dist")], capture_output=True, text=True
+    )
     assert res.returncode == 0, res.stderr
     (legacy,) = res.stdout.split()
     assert legacy.endswith("-legacy.zip") and "wheel(s) missing" in res.stderr

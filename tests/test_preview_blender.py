@@ -15,7 +15,7 @@ import pytest
 pytestmark = pytest.mark.blender  # Cycles through the bpy module
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-A, B = 1.0, 0.5            # sky L = A + B z: a Lambertian of albedo 0.8 shows 0.8 (A + 2 B n_z / 3)
+A, B = 1.0, 0.5  # sky L = A + B z: a Lambertian of albedo 0.8 shows 0.8 (A + 2 B n_z / 3)
 
 
 @pytest.fixture(scope="module")
@@ -48,8 +48,9 @@ def sun(bpy, tmp_path_factory):
     from addon.blender.preview import write_environment
 
     s = np.array([-0.3, -0.8, 0.5]) / np.linalg.norm([-0.3, -0.8, 0.5])
-    env = Environment.from_function(lambda d: np.repeat(0.05 + 300.0 * (d @ s > math.cos(0.04))[:, None], 3, 1),
-                                    1024, 512)
+    env = Environment.from_function(
+        lambda d: np.repeat(0.05 + 300.0 * (d @ s > math.cos(0.04))[:, None], 3, 1), 1024, 512
+    )
     return write_environment(env.pixels, str(tmp_path_factory.mktemp("env") / "sun.exr"))
 
 
@@ -59,7 +60,7 @@ def read_exr(bpy, path):
     buf = np.empty(w * h * 4, np.float32)
     img.pixels.foreach_get(buf)
     bpy.data.images.remove(img)
-    return buf.reshape(h, w, 4)[::-1]          # top row first, as the engine's images
+    return buf.reshape(h, w, 4)[::-1]  # top row first, as the engine's images
 
 
 def closed_form(layout):
@@ -78,8 +79,8 @@ def lambert_as_lobe(sample_table):
     from addon.core.render import MomentParams, TableBRDF
 
     table = sample_table("lambertian")
-    a = 0.8 * math.pi      # alpha = rho pi^2 with rho = 0.8/pi: the lobe is the uniform square
-    model = MomentParams((a,) * 3, (a,) * 3, (0.0,) * 3, 0.8, 1.2, 0.0, math.pi ** 2 / 12)
+    a = 0.8 * math.pi  # alpha = rho pi^2 with rho = 0.8/pi: the lobe is the uniform square
+    model = MomentParams((a,) * 3, (a,) * 3, (0.0,) * 3, 0.8, 1.2, 0.0, math.pi**2 / 12)
     return model, TableBRDF(table, compute_profiles(table, split=False))
 
 
@@ -119,13 +120,14 @@ def test_osl_lambertian_render_matches_the_closed_form(mode, scene, sky, sample_
     from addon.blender.preview import build_preview, render_still
 
     model, table = lambert_as_lobe(sample_table)
-    info = build_preview(scene, model if mode == "model" else table, path="osl", mode=mode, env=sky, size=48,
-                         samples=16, lobe_samples=16)
+    info = build_preview(
+        scene, model if mode == "model" else table, path="osl", mode=mode, env=sky, size=48, samples=16, lobe_samples=16
+    )
     img = read_exr(bpy, render_still(scene, str(tmp_path / f"osl-{mode}.exr")))
     mask, want = closed_form(info.layout)
     rel = img[mask][:, 0] / want - 1
     assert abs(rel.mean()) < 0.01
-    assert np.sqrt(np.mean(rel ** 2)) < 1.5 / math.sqrt(16 * 16)
+    assert np.sqrt(np.mean(rel**2)) < 1.5 / math.sqrt(16 * 16)
 
 
 def test_osl_diffuse_closure_carries_kd(scene, sky, sample_table, tmp_path, bpy):
@@ -133,12 +135,11 @@ def test_osl_diffuse_closure_carries_kd(scene, sky, sample_table, tmp_path, bpy)
     64 samples: mean within 1 %, per-pixel rms within 3 % (measured 1.1 %)."""
     from addon.blender.preview import build_preview, render_still
 
-    info = build_preview(scene, sample_table("lambertian"), path="osl", mode="tabulated", env=sky, size=48,
-                         samples=64)
+    info = build_preview(scene, sample_table("lambertian"), path="osl", mode="tabulated", env=sky, size=48, samples=64)
     img = read_exr(bpy, render_still(scene, str(tmp_path / "kd.exr")))
     mask, want = closed_form(info.layout)
     rel = img[mask][:, 0] / want - 1
-    assert abs(rel.mean()) < 0.01 and np.sqrt(np.mean(rel ** 2)) < 0.03
+    assert abs(rel.mean()) < 0.01 and np.sqrt(np.mean(rel**2)) < 0.03
 
 
 @pytest.mark.parametrize("mode", ["model", "tabulated"])
@@ -158,18 +159,18 @@ def test_osl_glossy_agrees_with_the_numpy_reference(mode, scene, sample_table, t
     got, want = img[mask][:, :3], ref[mask][:, :3]
     assert got.mean() == pytest.approx(want.mean(), rel=0.02)
     # pixel by pixel, within the noise of 32 x 16 samples (measured 10 %; the mean agrees to 0.5 %)
-    assert np.sqrt(np.mean((got - want) ** 2)) / np.sqrt(np.mean(want ** 2)) < 0.15
+    assert np.sqrt(np.mean((got - want) ** 2)) / np.sqrt(np.mean(want**2)) < 0.15
 
 
 def highlight(img, layout, k):
     """(peak, area above half the peak, mean) of sphere k's interior luminance."""
     d, left, top = layout.diameter, layout.lefts[k], layout.top
-    tile = img[top:top + d, left:left + d, :3].mean(axis=2)
-    inner = layout.interior_mask()[top:top + d, left:left + d]
+    tile = img[top : top + d, left : left + d, :3].mean(axis=2)
+    inner = layout.interior_mask()[top : top + d, left : left + d]
     v = np.where(inner, tile, 0.0)
     # a 3x3 box blur first, so one noisy pixel is not "the peak"
     p = np.pad(v, 1)
-    blur = sum(p[i:i + d, j:j + d] for i in range(3) for j in range(3)) / 9.0
+    blur = sum(p[i : i + d, j : j + d] for i in range(3) for j in range(3)) / 9.0
     peak = blur[inner].max()
     return peak, int((blur[inner] > 0.5 * peak).sum()), v[inner].mean()
 
@@ -183,8 +184,18 @@ def test_larger_variance_gives_a_lower_blurrier_highlight(path, scene, sun, tmp_
 
     original = MomentParams((0.8,) * 3, (0.8,) * 3, (0.0,) * 3, 0.8, 1.3, -1.0, 0.004, (0.02,) * 3)
     edited = original.edited(sigma2=0.016)
-    info = build_preview(scene, original, edited, path=path, mode="model", env=sun, size=(160, 80), samples=16,
-                         lobe_samples=32, bake_samples=32)
+    info = build_preview(
+        scene,
+        original,
+        edited,
+        path=path,
+        mode="model",
+        env=sun,
+        size=(160, 80),
+        samples=16,
+        lobe_samples=32,
+        bake_samples=32,
+    )
     img = read_exr(bpy, render_still(scene, str(tmp_path / f"sigma-{path}.exr")))
     p0, a0, m0 = highlight(img, info.layout, 0)
     p1, a1, m1 = highlight(img, info.layout, 1)
@@ -201,12 +212,13 @@ def test_touching_one_of_ten_materials_rebakes_one(scene, sun, bpy):
     params = [base.edited(strength=0.5 + 0.1 * k) for k in range(10)]
     import addon.blender.preview.build as build
 
-    build.CACHE = BakeCache()              # count bakes from zero (no disk cache)
-    info = build_row(scene, params, labels=[f"m{k}" for k in range(10)], path="baked", env=sun,
-                     size=(200, 24), bake_samples=4)
+    build.CACHE = BakeCache()  # count bakes from zero (no disk cache)
+    info = build_row(
+        scene, params, labels=[f"m{k}" for k in range(10)], path="baked", env=sun, size=(200, 24), bake_samples=4
+    )
     assert sorted(info.baked) == sorted(f"BRDFM m{k}" for k in range(10))
     assert len(build.CACHE.computed) == 10
-    assert refresh_baked(scene) == []                    # nothing changed, nothing baked
+    assert refresh_baked(scene) == []  # nothing changed, nothing baked
     mat = bpy.data.materials["BRDFM m3"]
     set_source(mat, source_of(mat).edited(sigma2=0.05))
     assert refresh_baked(scene) == ["BRDFM m3"]
@@ -231,9 +243,32 @@ def test_render_command(sky, tmp_path, sample_table):
     path = samples.sample_path("lambertian")
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))
     out = tmp_path / "render.exr"
-    res = subprocess.run([sys.executable, "-m", "addon", "render", path, "--edited", path, "--path", "baked",
-                          "--env", sky, "--size", "48", "--samples", "4", "--out", str(out)],
-                         cwd=ROOT, capture_output=True, text=True, env=env, timeout=300)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "addon",
+            "render",
+            path,
+            "--edited",
+            path,
+            "--path",
+            "baked",
+            "--env",
+            sky,
+            "--size",
+            "48",
+            "--samples",
+            "4",
+            "--out",
+            str(out),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert res.returncode == 0, res.stderr
     assert res.stdout.startswith(f"wrote {out}") and "baked" in res.stdout
     import OpenEXR
@@ -245,14 +280,41 @@ def test_render_command(sky, tmp_path, sample_table):
     mask, want = closed_form(sphere_layout(48, 48, 2))
     np.testing.assert_allclose(pix[mask][:, 0], want, rtol=2e-3)
     png = tmp_path / "render.png"
-    res = subprocess.run([sys.executable, "-m", "addon", "render", path, "--path", "baked", "--env", sky,
-                          "--size", "32", "--out", str(png)], cwd=ROOT, capture_output=True, text=True, env=env,
-                         timeout=300)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "addon",
+            "render",
+            path,
+            "--path",
+            "baked",
+            "--env",
+            sky,
+            "--size",
+            "32",
+            "--out",
+            str(png),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert res.returncode == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    for bad, fault in ((["--out", str(tmp_path / "x.jpg")], "x.jpg: the output must end in .png"),
-                       (["--env", "nowhere", "--out", str(png)], "nowhere: no such bundled environment")):
-        res = subprocess.run([sys.executable, "-m", "addon", "render", path, *bad], cwd=ROOT, capture_output=True,
-                             text=True, env=env, timeout=300)
+    for bad, fault in (
+        (["--out", str(tmp_path / "x.jpg")], "x.jpg: the output must end in .png"),
+        (["--env", "nowhere", "--out", str(png)], "nowhere: no such bundled environment"),
+    ):
+        res = subprocess.run(
+            [sys.executable, "-m", "addon", "render", path, *bad],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=300,
+        )
         assert res.returncode == 2 and fault in res.stderr and len(res.stderr.strip().splitlines()) == 1
 
 

@@ -20,14 +20,29 @@ def test_baked_preview_renders_in_blender_34(tmp_path):
         pytest.skip("no blender binary (scripts/setup.sh installs Debian's)")
     env = dict(os.environ, BLENDER_USER_SCRIPTS=str(tmp_path / "scripts"), BLENDER_USER_CONFIG=str(tmp_path / "config"))
     out = tmp_path / "out"
-    res = subprocess.run([BLENDER, "-b", "--factory-startup", "--python-exit-code", "1",
-                          "-P", os.path.join(ROOT, "tests", "blender", "preview_baked.py"), "--", ROOT, str(out)],
-                         capture_output=True, text=True, env=env, timeout=600)
+    res = subprocess.run(
+        [
+            BLENDER,
+            "-b",
+            "--factory-startup",
+            "--python-exit-code",
+            "1",
+            "-P",
+            os.path.join(ROOT, "tests", "blender", "preview_baked.py"),
+            "--",
+            ROOT,
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     log = res.stdout + res.stderr
     assert res.returncode == 0, log[-4000:]
     assert "Traceback" not in log, log[-4000:]
     result = json.loads((out / "result.json").read_text())
-    assert result["path"] == "baked"                 # auto: no OSL in this build
+    assert result["path"] == "baked"  # auto: no OSL in this build
     assert result["size"] == [48, 48] and result["baked"] == ["BRDFM Original"]
     # Cycles 3.4 shows the bake: the Lambertian closed form within 2e-3 (texel-constant sky)
     assert result["max_rel_err"] < 2e-3, result

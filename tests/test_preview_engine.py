@@ -7,13 +7,27 @@ from addon.core.truncated import CAP_FRACTION, variance_cap
 import numpy as np
 import pytest
 
-from addon.core.render import (BakeCache, Environment, ModelBRDF, MomentParams, TableBRDF, bake_sphere,
-                               reference_sphere, relative_rmse, render_baked, render_reference, sphere_layout,
-                               truncated_params, truncnorm_mass, truncnorm_pdf, truncnorm_sample)
+from addon.core.render import (
+    BakeCache,
+    Environment,
+    ModelBRDF,
+    MomentParams,
+    TableBRDF,
+    bake_sphere,
+    reference_sphere,
+    relative_rmse,
+    render_baked,
+    render_reference,
+    sphere_layout,
+    truncated_params,
+    truncnorm_mass,
+    truncnorm_pdf,
+    truncnorm_sample,
+)
 from addon.core.render.envmap import direction_to_uv
 from addon.core.render.scene import interior_texels, texel_positions
 
-A, B = 1.0, 0.5            # the sky L(d) = A + B d_z: irradiance E(n) = pi A + (2 pi / 3) B n_z
+A, B = 1.0, 0.5  # the sky L(d) = A + B d_z: irradiance E(n) = pi A + (2 pi / 3) B n_z
 
 
 def gradient_env(width=256, height=128):
@@ -44,8 +58,10 @@ def lambert_whole(sample_table):
 def test_equirect_mapping_is_blenders():
     # Measured on Cycles 4.5 (world Environment Texture): +X is the image centre, +Y a quarter
     # to the left, up is the top row.
-    u, v = direction_to_uv(np.array([[1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0], [1.0, 0, 1.0]]) /
-                           np.array([[1.0], [1.0], [1.0], [math.sqrt(2)]]))
+    u, v = direction_to_uv(
+        np.array([[1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0], [1.0, 0, 1.0]])
+        / np.array([[1.0], [1.0], [1.0], [math.sqrt(2)]])
+    )
     np.testing.assert_allclose(u, [0.5, 0.25, 0.75, 0.5], atol=1e-12)
     np.testing.assert_allclose(v, [0.5, 0.5, 0.5, 0.25], atol=1e-12)
 
@@ -106,7 +122,7 @@ def test_truncated_params_round_trip_and_uniform_limit():
     rng = np.random.default_rng(2)
     m0 = rng.uniform(-2.2, 0.4, 3000)
     s0 = np.exp(rng.uniform(math.log(2e-3), math.log(15.0), 3000))
-    keep = truncnorm_mass(m0, s0) > 1e-6          # lobes with something left on the interval
+    keep = truncnorm_mass(m0, s0) > 1e-6  # lobes with something left on the interval
     mean, var = truncnorm_moments(m0[keep], s0[keep])
     m, s = truncated_params(mean, var)
     mt, vt = truncnorm_moments(m, s)
@@ -119,9 +135,9 @@ def test_truncated_params_round_trip_and_uniform_limit():
     np.testing.assert_allclose(vt[~inside], cap[~inside], rtol=1e-6)
     # pi^2/12 is the uniform, which no truncated Gaussian reaches: the one rule (core.truncated)
     # caps it at 99.5 % of it, a lobe within 2 % of uniform
-    m, s = truncated_params(np.zeros(1), np.array([math.pi ** 2 / 12]))
+    m, s = truncated_params(np.zeros(1), np.array([math.pi**2 / 12]))
     _, vt = truncnorm_moments(m, s)
-    np.testing.assert_allclose(vt, 0.995 * math.pi ** 2 / 12, rtol=1e-6)
+    np.testing.assert_allclose(vt, 0.995 * math.pi**2 / 12, rtol=1e-6)
     x = np.linspace(-1.5, 1.5, 7)
     np.testing.assert_allclose(truncnorm_pdf(x, m, s), 1 / math.pi, rtol=2e-2)
 
@@ -174,11 +190,13 @@ def test_lambertian_bake_and_reference_match_the_closed_form(lambert, lambert_wh
     assert np.all(cov[b, a] == 1.0)
     ref, cov = reference_sphere(lambert, env, d, spp=16, seed=1)
     np.testing.assert_allclose(ref[b, a, 0], want, rtol=2e-3)
-    for rgb, n in ((bake_sphere(lambert_whole, env, d, 128, seed=2)[0], 2 * 128),
-                   (reference_sphere(lambert_whole, env, d, 512, 3)[0], 512)):
+    for rgb, n in (
+        (bake_sphere(lambert_whole, env, d, 128, seed=2)[0], 2 * 128),
+        (reference_sphere(lambert_whole, env, d, 512, 3)[0], 512),
+    ):
         rel = rgb[b, a, 0] / want - 1
         assert abs(rel.mean()) < 5e-3
-        assert np.sqrt(np.mean(rel ** 2)) < 1.2 / math.sqrt(n)
+        assert np.sqrt(np.mean(rel**2)) < 1.2 / math.sqrt(n)
 
 
 def test_moment_model_uses_the_solid_angle_measure():
@@ -189,7 +207,7 @@ def test_moment_model_uses_the_solid_angle_measure():
     of the uniform's, a lobe within 2 % of it that brightens the centre of the sphere by 0.65 %
     (measured); the measure mistake stays three times larger than the tolerance."""
     a = 0.8 * math.pi
-    model = ModelBRDF(MomentParams((a,) * 3, (a,) * 3, (0.0,) * 3, 0.8, 1.2, 0.0, math.pi ** 2 / 12))
+    model = ModelBRDF(MomentParams((a,) * 3, (a,) * 3, (0.0,) * 3, 0.8, 1.2, 0.0, math.pi**2 / 12))
     env = Environment.constant((1.0, 1.0, 1.0))
     rgb, cov = bake_sphere(model, env, 24, lobe_samples=256, seed=0)
     inner = interior_texels(24)
@@ -204,7 +222,9 @@ def test_bake_agrees_with_the_reference_on_a_glossy_table(sample_table):
     bake by 1.1 % from this one: bounded at 3 %, and the means at 1 %."""
     env = Environment.from_function(
         lambda d: np.repeat(0.3 + 0.2 * d[:, 2:3] + 30.0 * (d @ np.array([0.6, -0.6, 0.53]) > 0.995)[:, None], 3, 1),
-        256, 128)
+        256,
+        128,
+    )
     brdf = TableBRDF(sample_table("ggx_glossy"))
     lay = sphere_layout(48, 48, 1)
     ref = render_reference(lay, [brdf], env, spp=1024, seed=11)
@@ -226,7 +246,7 @@ def test_cache_recomputes_only_the_material_that_changed():
     for p in mats:
         cache.get(ModelBRDF(p), env, 12, 8)
     assert len(cache.computed) == 11
-    cache.get(ModelBRDF(mats[0]), env, 14, 8)      # another resolution is another bake
+    cache.get(ModelBRDF(mats[0]), env, 14, 8)  # another resolution is another bake
     assert len(cache.computed) == 12
 
 
@@ -237,7 +257,7 @@ def test_disk_cache_keeps_the_newest_bakes_and_reads_them_back(tmp_path):
     for k in range(5):
         cache.get(ModelBRDF(base.edited(strength=1 + k)), env, 8, 4)
     assert len(list(tmp_path.glob("bake-*.npz"))) == 3
-    fresh = BakeCache(str(tmp_path), max_files=3)          # a new session finds the newest on disk
+    fresh = BakeCache(str(tmp_path), max_files=3)  # a new session finds the newest on disk
     rgb, cov, _ = fresh.get(ModelBRDF(base.edited(strength=5)), env, 8, 4)
     assert fresh.computed == [] and rgb.shape == (8, 8, 3)
     fresh.get(ModelBRDF(base.edited(strength=1)), env, 8, 4)  # pruned: baked again

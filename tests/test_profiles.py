@@ -8,12 +8,17 @@ from scipy import integrate as sp_integrate
 from scipy.special import ndtr
 from scipy.stats import truncnorm
 
-from addon.core.integrate import (get_operator, monte_carlo_sums, reference_sums, table_slice_evaluator,
-                                  table_sums)
+from addon.core.integrate import get_operator, monte_carlo_sums, reference_sums, table_slice_evaluator, table_sums
 from addon.core.merl import N_CELLS, MerlTable
 from addon.core.moments import profiles_from_sums
-from addon.core.profiles import (Profiles, compute_profiles, diffuse_floor, function_profiles,
-                                 monte_carlo_profiles, specular_values)
+from addon.core.profiles import (
+    Profiles,
+    compute_profiles,
+    diffuse_floor,
+    function_profiles,
+    monte_carlo_profiles,
+    specular_values,
+)
 
 H = math.pi / 2
 
@@ -79,11 +84,11 @@ def test_lambertian_table_has_the_closed_form_profiles(views):
     prof = compute_profiles(_lambertian_table(), views, split=False)
     for ch in ("r", "g", "b", "avg"):
         p = prof[ch]
-        np.testing.assert_allclose(p["alpha"], 0.8 / math.pi * math.pi ** 2, rtol=2e-6)
+        np.testing.assert_allclose(p["alpha"], 0.8 / math.pi * math.pi**2, rtol=2e-6)
         np.testing.assert_allclose(p["mu_theta"], 0.0, atol=2e-6)
         np.testing.assert_allclose(p["mu_phi"], 0.0, atol=2e-6)
-        np.testing.assert_allclose(p["sigma_tt"], math.pi ** 2 / 12, rtol=3e-6)
-        np.testing.assert_allclose(p["sigma_pp"], math.pi ** 2 / 12, rtol=3e-6)
+        np.testing.assert_allclose(p["sigma_tt"], math.pi**2 / 12, rtol=3e-6)
+        np.testing.assert_allclose(p["sigma_pp"], math.pi**2 / 12, rtol=3e-6)
         np.testing.assert_allclose(p["kurt_40"], -1.2, atol=5e-5)  # float32 weights
         np.testing.assert_allclose(p["kurt_04"], -1.2, atol=5e-5)
         np.testing.assert_allclose(p["kurt_22"], 0.0, atol=5e-5)  # independent axes: E[u^2 v^2] = 1
@@ -117,8 +122,12 @@ def test_mirror_like_table_has_mean_at_the_mirror_and_vanishing_variance():
     # At normal view the lit set is the cap of w_i within 2 theta_h of the normal: its
     # (theta, phi) area is a 1D integral done here independently with scipy.
     b = (1 / 90) ** 2 * H
-    area = sp_integrate.quad(lambda p_: 2 * math.acos(min(1.0, math.cos(2 * b) / math.cos(p_)))
-                             if math.cos(p_) > math.cos(2 * b) else 0.0, -2 * b, 2 * b, epsabs=1e-16)[0]
+    area = sp_integrate.quad(
+        lambda p_: 2 * math.acos(min(1.0, math.cos(2 * b) / math.cos(p_))) if math.cos(p_) > math.cos(2 * b) else 0.0,
+        -2 * b,
+        2 * b,
+        epsabs=1e-16,
+    )[0]
     assert p["alpha"][0] == pytest.approx(area, rel=1e-5)
 
 
@@ -131,8 +140,14 @@ def test_ring_areas_at_normal_view_are_exact(ring):
         r = c / math.cos(p_)
         return 0.0 if r >= 1 else 2 * math.acos(max(r, -1.0))
 
-    area = sp_integrate.quad(lambda p_: width(math.cos(2 * b), p_) - width(math.cos(2 * a), p_), -H, H,
-                             points=[-2 * b, -2 * a, 2 * a, 2 * b], limit=400, epsabs=1e-15)[0]
+    area = sp_integrate.quad(
+        lambda p_: width(math.cos(2 * b), p_) - width(math.cos(2 * a), p_),
+        -H,
+        H,
+        points=[-2 * b, -2 * a, 2 * a, 2 * b],
+        limit=400,
+        epsabs=1e-15,
+    )[0]
     assert prof["avg"]["alpha"][0] == pytest.approx(area, rel=1e-5)
 
 
@@ -149,8 +164,10 @@ def test_moments_odd_in_phi_vanish_for_isotropic_samples(sample_table, views, na
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name, theta_o_deg", [("ggx_mirror", 30.0), ("ggx_rough", 60.0), ("gold", 80.0),
-                                               ("phong", 89.0), ("lambertian", 89.0)])
+@pytest.mark.parametrize(
+    "name, theta_o_deg",
+    [("ggx_mirror", 30.0), ("ggx_rough", 60.0), ("gold", 80.0), ("phong", 89.0), ("lambertian", 89.0)],
+)
 def test_fast_integrator_agrees_with_independent_reference(sample_table, name, theta_o_deg):
     # SPEC 6: alpha and sigma^2 within 0.1 %, mu within 1e-3 rad of the converged reference.
     # The point-sampled operator of version 7 missed these (gold 80: sigma_pp 1.2e-3; phong
@@ -182,8 +199,8 @@ def test_monte_carlo_is_seedable_and_unbiased_on_a_broad_lobe():
     p = monte_carlo_profiles(evaluate, to, 400_000, seed=3)
     # Constant slice: alpha is exact for any sample set; variance within a few standard errors.
     assert p["alpha"][0, 0] == pytest.approx(0.8 * math.pi, rel=1e-9)
-    se = math.sqrt((math.pi ** 4 / 80 - (math.pi ** 2 / 12) ** 2) / 400_000)
-    assert abs(p["sigma_tt"][0, 0] - math.pi ** 2 / 12) < 5 * se
+    se = math.sqrt((math.pi**4 / 80 - (math.pi**2 / 12) ** 2) / 400_000)
+    assert abs(p["sigma_tt"][0, 0] - math.pi**2 / 12) < 5 * se
 
 
 def test_only_the_orders_asked_for_are_computed(sample_table, views):
@@ -260,7 +277,7 @@ def test_trilinear_operator_matches_the_point_by_point_reading(sample_table, nam
     to = np.radians([10.0, 60.0, 85.0])
     fast = compute_profiles(table, to, interp="trilinear")
     holed = MerlTable(table.rho.copy(), table.valid.copy(), None)
-    far = np.flatnonzero(horizon_mask())[-1]          # theta_h, theta_d at the pole, the last phi_d
+    far = np.flatnonzero(horizon_mask())[-1]  # theta_h, theta_d at the pole, the last phi_d
     holed.valid[:, far] = False
     slow = compute_profiles(holed, to, interp="trilinear", kd=fast.kd)
     assert fast.interp == slow.interp == "trilinear"

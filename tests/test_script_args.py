@@ -61,8 +61,13 @@ def test_demo_parses_its_arguments_in_a_real_blender(tmp_path, tail):
     probe = tmp_path / "probe.py"
     probe.write_text(PROBE.format(demo=os.path.join(ROOT, "samples", "demo.py")))
     env = dict(os.environ, BLENDER_USER_SCRIPTS=str(tmp_path / "scripts"), BLENDER_USER_CONFIG=str(tmp_path / "config"))
-    res = subprocess.run([BLENDER, "-b", "--factory-startup", "--python-exit-code", "1", "-P", str(probe), *tail],
-                         capture_output=True, text=True, env=env, timeout=300)
+    res = subprocess.run(
+        [BLENDER, "-b", "--factory-startup", "--python-exit-code", "1", "-P", str(probe), *tail],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     log = res.stdout + res.stderr
     assert res.returncode == 0, log[-3000:]
     line = next((x for x in res.stdout.splitlines() if x.startswith("ARGS ")), None)

@@ -16,9 +16,24 @@ from _stress import merl_bytes, sha256, stored_of
 
 pytestmark = pytest.mark.stress
 
-UI_FLOATS = ("fit_alpha_b", "fit_theta0", "fit_theta1", "fit_alpha1", "fit_m1", "fit_mu_slope", "fit_sigma2",
-             "fit_energy_rmse", "fit_mean_rmse", "fit_variance_rmse", "strength", "grazing_boost", "mu_slope",
-             "sigma2", "achieved_mu_slope", "achieved_sigma2")
+UI_FLOATS = (
+    "fit_alpha_b",
+    "fit_theta0",
+    "fit_theta1",
+    "fit_alpha1",
+    "fit_m1",
+    "fit_mu_slope",
+    "fit_sigma2",
+    "fit_energy_rmse",
+    "fit_mean_rmse",
+    "fit_variance_rmse",
+    "strength",
+    "grazing_boost",
+    "mu_slope",
+    "sigma2",
+    "achieved_mu_slope",
+    "achieved_sigma2",
+)
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +54,7 @@ def _assert_ui_finite(bpy, mat):
     state = mat.brdf_moments
     assert all(math.isfinite(v) for v in _ui_numbers(state)), dict(zip(UI_FLOATS, _ui_numbers(state)))
     # the slider ranges hold every fitted value (measured mu goes below -1)
-    assert -2.0 <= state.mu_slope <= 0.0 and np.float32(1e-8) <= state.sigma2 <= np.float32(math.pi ** 2 / 12)
+    assert -2.0 <= state.mu_slope <= 0.0 and np.float32(1e-8) <= state.sigma2 <= np.float32(math.pi**2 / 12)
     for text in (state.plot_caption, state.fit_notes, state.edit_warnings):
         assert "nan" not in text.lower().split() and "inf" not in text.lower().split(), text
     img = bpy.data.images.get(f"BRDF Moments plot: {mat.name}")
@@ -54,14 +69,13 @@ BAD = [
     ("padded", lambda raw: raw + b"\0\0\0\0", "oversized"),
     ("wrong header", lambda raw: merl_bytes(stored_of(raw), (90, 90, 360)), "wrong header"),
     ("random bytes", lambda raw: np.random.default_rng(3).bytes(5000), "wrong header"),
-    ("NaN", lambda raw: raw[:12 + 8 * 777] + np.array([np.nan]).tobytes() + raw[12 + 8 * 778:], "non-finite"),
+    ("NaN", lambda raw: raw[: 12 + 8 * 777] + np.array([np.nan]).tobytes() + raw[12 + 8 * 778 :], "non-finite"),
     ("all missing", lambda raw: merl_bytes(np.full((3, (len(raw) - 12) // 24), -1.0)), "no measured cells"),
     ("huge", lambda raw: merl_bytes(np.abs(stored_of(raw)) * 1e31), "above 1e+30"),
 ]
 
 
-def test_bad_files_are_cancelled_with_a_report_and_keep_the_previous_analysis(fresh, tmp_path, base_raw,
-                                                                             stress_log):
+def test_bad_files_are_cancelled_with_a_report_and_keep_the_previous_analysis(fresh, tmp_path, base_raw, stress_log):
     import samples
 
     bpy = fresh
@@ -83,9 +97,11 @@ def test_bad_files_are_cancelled_with_a_report_and_keep_the_previous_analysis(fr
         assert sha256(path) == digest
         stress_log.record("Blender: Load MERL on bad files", "error", f"{name}: {fault}")
     # A folder is a source only when it holds Neural-BRDF .npy weights; this one holds none.
-    for name, filepath, fault in [("folder", str(tmp_path), "a folder with no network weights"),
-                                  ("missing", str(tmp_path / "gone.binary"), "no such file"),
-                                  ("no file", "", "no MERL file chosen")]:
+    for name, filepath, fault in [
+        ("folder", str(tmp_path), "a folder with no network weights"),
+        ("missing", str(tmp_path / "gone.binary"), "no such file"),
+        ("no file", "", "no MERL file chosen"),
+    ]:
         with pytest.raises(RuntimeError, match=fault):
             bpy.ops.brdf_moments.load_merl(filepath=filepath, material="M")
         assert state.profiles_data == before[3]
@@ -145,5 +161,8 @@ def test_apply_at_the_slider_limits_never_breaks_blender(fresh, tmp_path, stress
         assert outcome == {"FINISHED"} and os.path.isfile(state.edited_path)
     _assert_ui_finite(bpy, mat)
     assert sha256(src) == digest
-    stress_log.record("Blender: Apply at the slider limits", "error" if outcome == "error" else "clamped",
-                      "model, mu 0, sigma2 at its minimum")
+    stress_log.record(
+        "Blender: Apply at the slider limits",
+        "error" if outcome == "error" else "clamped",
+        "model, mu 0, sigma2 at its minimum",
+    )

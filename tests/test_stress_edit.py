@@ -53,8 +53,9 @@ LIMIT_CASES = [
 
 
 @pytest.mark.parametrize("mu, s2, want_mu, want_s2, clamped", LIMIT_CASES)
-def test_sliders_at_and_beyond_their_limits_are_clamped_with_a_warning(glossy, stress_log, mu, s2, want_mu,
-                                                                       want_s2, clamped):
+def test_sliders_at_and_beyond_their_limits_are_clamped_with_a_warning(
+    glossy, stress_log, mu, s2, want_mu, want_s2, clamped
+):
     _, _, fit = glossy
     lo = min(-1.0, fit["mu_slope"])
     sym = {"LO": lo, "LO-": lo - 1e-12 * max(1.0, abs(lo))}
@@ -65,11 +66,23 @@ def test_sliders_at_and_beyond_their_limits_are_clamped_with_a_warning(glossy, s
     stress_log.record("slider limits", "clamped" if clamped else "valid", f"mu={mu:g}, sigma2={s2:g}")
 
 
-@pytest.mark.parametrize("field, value", [("mu_slope", math.nan), ("mu_slope", math.inf), ("sigma2", -math.inf),
-                                          ("sigma2", math.nan), ("strength", -1.0), ("strength", math.nan),
-                                          ("grazing_boost", math.inf), ("colour", (1.0, math.nan, 1.0)),
-                                          ("colour", (1.0, -0.1, 1.0)), ("colour", (1.0, 1.0)),
-                                          ("mode", "bogus"), ("lock", True)])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("mu_slope", math.nan),
+        ("mu_slope", math.inf),
+        ("sigma2", -math.inf),
+        ("sigma2", math.nan),
+        ("strength", -1.0),
+        ("strength", math.nan),
+        ("grazing_boost", math.inf),
+        ("colour", (1.0, math.nan, 1.0)),
+        ("colour", (1.0, -0.1, 1.0)),
+        ("colour", (1.0, 1.0)),
+        ("mode", "bogus"),
+        ("lock", True),
+    ],
+)
 def test_impossible_slider_values_are_clear_errors(glossy, stress_log, field, value):
     _, _, fit = glossy
     with pytest.raises(ValueError) as info:
@@ -103,7 +116,9 @@ def _valid_step(field, value):
     return True
 
 
-@settings(max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(steps=st.lists(STEP, min_size=1, max_size=12))
 def test_random_slider_sequences_always_resolve_to_valid_targets_or_a_clear_error(glossy, stress_log, steps):
     _, prof, fit = glossy
@@ -136,7 +151,9 @@ def test_random_slider_sequences_always_resolve_to_valid_targets_or_a_clear_erro
         stress_log.record("random slider steps (clamping, 300 sequences)", "clamped" if warnings else "valid")
 
 
-@settings(max_examples=200, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=200, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(mean=st.floats(-H, H), var=st.floats(1e-12, LAMBERT_VARIANCE))
 def test_truncated_gaussian_solve_is_finite_and_exact_where_it_says_so(stress_log, mean, var):
     m, s, ok = solve_truncated(np.array([mean]), np.array([var]))
@@ -153,10 +170,11 @@ def test_truncated_gaussian_solve_is_finite_and_exact_where_it_says_so(stress_lo
 
 # --- full edits -----------------------------------------------------------------------------
 
+
 def _check_result(res, table, tmp_path, name):
     out = res.table
     assert out.rho.shape == table.rho.shape
-    np.testing.assert_array_equal(out.valid, table.valid)          # missing stays missing
+    np.testing.assert_array_equal(out.valid, table.valid)  # missing stays missing
     assert np.isfinite(out.rho).all() and (out.rho >= 0).all()
     assert out.rho.max() <= MAX_REFLECTANCE
     assert np.isfinite(res.max_albedo).all()
@@ -224,13 +242,24 @@ def test_a_needle_edit_keeps_the_energy_or_says_it_cannot(glossy):
     assert not lost.any() or any("energy" in w for w in res.warnings), (np.degrees(prof.theta_o[lost]), got[lost])
 
 
-@settings(max_examples=3, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                 HealthCheck.too_slow])
-@given(steps=st.lists(st.one_of(
-    st.tuples(st.just("mu_slope"), st.floats(-1.3, 0.3)),
-    st.tuples(st.just("sigma2"), st.floats(-0.1, 1.2)),
-    st.tuples(st.just("strength"), st.floats(0.0, 3.0)),
-    st.tuples(st.just("mode"), st.sampled_from(["warp", "model"]))), min_size=2, max_size=6))
+@settings(
+    max_examples=3,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+@given(
+    steps=st.lists(
+        st.one_of(
+            st.tuples(st.just("mu_slope"), st.floats(-1.3, 0.3)),
+            st.tuples(st.just("sigma2"), st.floats(-0.1, 1.2)),
+            st.tuples(st.just("strength"), st.floats(0.0, 3.0)),
+            st.tuples(st.just("mode"), st.sampled_from(["warp", "model"])),
+        ),
+        min_size=2,
+        max_size=6,
+    )
+)
 def test_random_slider_sequences_end_to_end(glossy, stress_log, tmp_path_factory, steps):
     table, prof, fit = glossy
     t = EditTargets()

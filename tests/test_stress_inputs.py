@@ -16,8 +16,16 @@ import zlib
 import numpy as np
 import pytest
 
-from _stress import (ROOT, assert_finite_tree, assert_one_line_error, assert_profiles_sane, merl_bytes, run_cli,
-                     sha256, stored_of)
+from _stress import (
+    ROOT,
+    assert_finite_tree,
+    assert_one_line_error,
+    assert_profiles_sane,
+    merl_bytes,
+    run_cli,
+    sha256,
+    stored_of,
+)
 from addon.core.fits import fit_material
 from addon.core.merl import FILE_BYTES, N_CELLS, MerlError, read_merl, write_merl
 from addon.core.profiles import compute_profiles
@@ -45,12 +53,14 @@ def _with(stored_fn):
         s = stored_of(raw)
         stored_fn(s, rng)
         return merl_bytes(s)
+
     return build
 
 
 def _set(ch, cell, value):
     def fn(s, rng):
         s[ch, cell] = value
+
     return fn
 
 
@@ -61,6 +71,7 @@ def _bits(u64):
 def _spots(value, n=5):
     def fn(s, rng):
         s.reshape(-1)[rng.choice(s.size, n, replace=False)] = value
+
     return fn
 
 
@@ -71,7 +82,7 @@ CASES = [
     ("5 bytes", "truncated or padded", lambda r, g: r[:5], "too short", None),
     ("header only", "truncated or padded", lambda r, g: r[:12], "truncated", None),
     ("one value", "truncated or padded", lambda r, g: r[:20], "truncated", None),
-    ("half", "truncated or padded", lambda r, g: r[:FILE_BYTES // 2], "truncated", None),
+    ("half", "truncated or padded", lambda r, g: r[: FILE_BYTES // 2], "truncated", None),
     ("minus 1 byte", "truncated or padded", lambda r, g: r[:-1], "truncated", None),
     ("minus 1 value", "truncated or padded", lambda r, g: r[:-8], "truncated", None),
     ("plus 1 byte", "truncated or padded", lambda r, g: r + b"\0", "oversized", None),
@@ -80,8 +91,13 @@ CASES = [
     # wrong header
     ("90x90x181", "wrong header", lambda r, g: merl_bytes(stored_of(r), (90, 90, 181)), "wrong header", None),
     ("180x90x90", "wrong header", lambda r, g: merl_bytes(stored_of(r), (180, 90, 90)), "wrong header", None),
-    ("big-endian", "wrong header", lambda r, g: np.array([90, 90, 180], ">i4").tobytes() + r[12:], "wrong header",
-     None),
+    (
+        "big-endian",
+        "wrong header",
+        lambda r, g: np.array([90, 90, 180], ">i4").tobytes() + r[12:],
+        "wrong header",
+        None,
+    ),
     ("zeros", "wrong header", lambda r, g: b"\0" * 12 + r[12:], "wrong header", None),
     ("negative", "wrong header", lambda r, g: merl_bytes(stored_of(r), (-90, 90, 180)), "wrong header", None),
     ("1x1x1", "wrong header", lambda r, g: np.array([1, 1, 1], "<i4").tobytes() + r[12:36], "wrong header", None),
@@ -92,9 +108,13 @@ CASES = [
     ("random short", "random bytes", lambda r, g: g.bytes(int(g.integers(13, 4000))), "wrong header", None),
     ("random body 1", "random bytes", lambda r, g: r[:12] + g.bytes(FILE_BYTES - 12), "non-finite", None),
     ("random body 2", "random bytes", lambda r, g: r[:12] + g.bytes(FILE_BYTES - 12), "non-finite", None),
-    ("random finite body", "random bytes",
-     lambda r, g: merl_bytes(np.where(g.random((3, N_CELLS)) < 0.05, -1.0, g.random((3, N_CELLS)) * 3000.0)),
-     None, "valid"),
+    (
+        "random finite body",
+        "random bytes",
+        lambda r, g: merl_bytes(np.where(g.random((3, N_CELLS)) < 0.05, -1.0, g.random((3, N_CELLS)) * 3000.0)),
+        None,
+        "valid",
+    ),
     # NaN or inf
     ("NaN first cell", "NaN or inf", _with(_set(0, 0, np.nan)), "non-finite", None),
     ("NaN last cell", "NaN or inf", _with(_set(2, N_CELLS - 1, np.nan)), "non-finite", None),
@@ -108,8 +128,13 @@ CASES = [
     ("all -1", "all cells missing", _with(lambda s, g: s.fill(-1.0)), "no measured cells", None),
     ("all -1e300", "all cells missing", _with(lambda s, g: s.fill(-1e300)), "no measured cells", None),
     ("green missing", "all cells missing", _with(lambda s, g: s[1].fill(-1.0)), None, "clamped"),
-    ("one cell left", "all cells missing",
-     _with(lambda s, g: (s.fill(-1.0), s.__setitem__((slice(None), 1234567), 1.0))), None, "clamped"),
+    (
+        "one cell left",
+        "all cells missing",
+        _with(lambda s, g: (s.fill(-1.0), s.__setitem__((slice(None), 1234567), 1.0))),
+        None,
+        "clamped",
+    ),
     # all-zero channel
     ("green zero", "all-zero channel", _with(lambda s, g: s[1].__setitem__(s[1] >= 0, 0.0)), None, "clamped"),
     ("all zero", "all-zero channel", _with(lambda s, g: s.__setitem__(s >= 0, 0.0)), None, "clamped"),
@@ -117,12 +142,22 @@ CASES = [
     # huge values
     ("x 1e12", "1e12 and huge values", _with(lambda s, g: s.__setitem__(s >= 0, s[s >= 0] * 1e12)), None, "valid"),
     ("one 1e12 cell", "1e12 and huge values", _with(_set(0, 1000, 1e12)), None, "valid"),
-    ("x 1e30", "1e12 and huge values", _with(lambda s, g: s.__setitem__(s >= 0, s[s >= 0] * 1e30)), "above 1e+30",
-     None),
+    (
+        "x 1e30",
+        "1e12 and huge values",
+        _with(lambda s, g: s.__setitem__(s >= 0, s[s >= 0] * 1e30)),
+        "above 1e+30",
+        None,
+    ),
     ("one max double", "1e12 and huge values", _with(_set(1, 99, np.finfo(float).max)), "above 1e+30", None),
     # subnormals
-    ("scaled to 1e-310", "subnormals", _with(lambda s, g: s.__setitem__(s >= 0, s[s >= 0] * (1e-310 / s.max()))),
-     None, "valid"),
+    (
+        "scaled to 1e-310",
+        "subnormals",
+        _with(lambda s, g: s.__setitem__(s >= 0, s[s >= 0] * (1e-310 / s.max()))),
+        None,
+        "valid",
+    ),
     ("sprinkled 5e-324", "subnormals", _with(_spots(5e-324, 1000)), None, "valid"),
     ("all 5e-324", "subnormals", _with(lambda s, g: s.fill(5e-324)), None, "clamped"),
 ]
@@ -147,8 +182,9 @@ def _check_loaded(table, prof, fit, base_profiles, case_id):
 
 
 @pytest.mark.parametrize("case_id, category, build, fault, outcome", CASES, ids=[c[0] for c in CASES])
-def test_fuzzed_file_is_refused_clearly_or_analysed_finitely(tmp_path, base_raw, base_profiles, stress_log, case_id,
-                                                              category, build, fault, outcome):
+def test_fuzzed_file_is_refused_clearly_or_analysed_finitely(
+    tmp_path, base_raw, base_profiles, stress_log, case_id, category, build, fault, outcome
+):
     rng = np.random.default_rng(zlib.crc32(case_id.encode()))
     path = tmp_path / "fuzzed.binary"
     path.write_bytes(build(base_raw, rng))
@@ -178,8 +214,14 @@ def test_fuzzed_file_is_refused_clearly_or_analysed_finitely(tmp_path, base_raw,
 # --- the command line -------------------------------------------------------------------------
 
 CLI_CASES = [  # (case id from CASES, command)
-    ("empty", "profiles"), ("minus 1 value", "fit"), ("big-endian", "edit"), ("random 1", "analyze"),
-    ("NaN payload", "profiles"), ("-inf", "edit"), ("all -1", "fit"), ("x 1e30", "profiles"),
+    ("empty", "profiles"),
+    ("minus 1 value", "fit"),
+    ("big-endian", "edit"),
+    ("random 1", "analyze"),
+    ("NaN payload", "profiles"),
+    ("-inf", "edit"),
+    ("all -1", "fit"),
+    ("x 1e30", "profiles"),
 ]
 
 
@@ -214,12 +256,12 @@ def test_cli_refuses_a_bad_file_with_one_line_and_writes_nothing(tmp_path, base_
 
 
 def test_cli_usage_errors_are_one_line(tmp_path, stress_log):
-    for args, fragment in [(["edit", "x.binary", "--out", tmp_path / "o.binary", "--sigma2", "nan"], "not a finite"),
-                           (["profiles", "x.binary", "--out", tmp_path / "o.json", "--elevations", "0"],
-                            "at least 1"),
-                           (["profiles", "x.binary", "--out", tmp_path / "o.json", "--max-elevation", "89.95"],
-                            None),
-                           (["fit"], "required")]:
+    for args, fragment in [
+        (["edit", "x.binary", "--out", tmp_path / "o.binary", "--sigma2", "nan"], "not a finite"),
+        (["profiles", "x.binary", "--out", tmp_path / "o.json", "--elevations", "0"], "at least 1"),
+        (["profiles", "x.binary", "--out", tmp_path / "o.json", "--max-elevation", "89.95"], None),
+        (["fit"], "required"),
+    ]:
         res = run_cli(*args)
         if fragment is None:  # a valid elevation: then the missing file is the fault
             assert_one_line_error(res, "x.binary", "cannot read")
@@ -304,8 +346,9 @@ def test_writer_killed_midway_never_leaves_a_half_written_destination(tmp_path, 
     if existing:
         write_merl(_const_table(0.5), out)
         before = sha256(out)
-    child = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, ROOT, str(out)], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+    child = subprocess.Popen(
+        [sys.executable, "-c", _SLOW_WRITER, ROOT, str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     try:
         assert child.stdout.readline().strip() == "halfway"
         temps = [p for p in os.listdir(tmp_path) if p.startswith(".tmp-brdfm-")]
@@ -349,8 +392,13 @@ def test_cli_edit_killed_at_random_moments_leaves_old_or_complete_output(tmp_pat
     env = dict(os.environ)
     rng = np.random.default_rng(11)
     for delay in sorted(rng.uniform(0.3, 3.0, 3)):
-        child = subprocess.Popen([sys.executable, "-m", "addon", "edit", src, "--out", str(out), "--alpha-scale",
-                                  "0.5"], cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        child = subprocess.Popen(
+            [sys.executable, "-m", "addon", "edit", src, "--out", str(out), "--alpha-scale", "0.5"],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         time.sleep(delay)
         child.send_signal(signal.SIGKILL)
         child.wait(timeout=30)

@@ -59,6 +59,7 @@ def _files(folder):
 
 # --- 1. outputs that destroy inputs ---------------------------------------------------------
 
+
 def test_no_command_writes_over_its_inputs(gold, gold_json, tmp_path, stress_log):
     src = tmp_path / "in.binary"
     shutil.copy(gold, src)
@@ -73,8 +74,10 @@ def test_no_command_writes_over_its_inputs(gold, gold_json, tmp_path, stress_log
         ("profiles --out in", ["profiles", src, "--out", src]),
         ("profiles --plot in", ["profiles", src, "--out", tmp_path / "o.json", "--plot", src]),
         ("profiles --out symlink to in", ["profiles", src, "--out", tmp_path / "link.json"]),
-        ("profiles --plot hard link to in", ["profiles", src, "--out", tmp_path / "o.json", "--plot",
-                                             tmp_path / "hard.png"]),
+        (
+            "profiles --plot hard link to in",
+            ["profiles", src, "--out", tmp_path / "o.json", "--plot", tmp_path / "hard.png"],
+        ),
         ("fit --out a profiles input", ["fit", js, "--out", js]),
         ("fit --out a MERL input", ["fit", src, "--out", src]),
         ("edit --out in", ["edit", src, "--out", src, "--alpha-scale", "0.5"]),
@@ -118,6 +121,7 @@ def test_the_engine_guard_refuses_inputs_of_the_run_through_any_writer(gold, tmp
 
 # --- 2. replacing what is not a regular file ----------------------------------------------------
 
+
 def test_devices_fifos_and_folders_are_never_replaced(gold, gold_json, tmp_path, stress_log):
     fifo = tmp_path / "pipe.json"
     os.mkfifo(fifo)
@@ -152,13 +156,13 @@ def test_devices_fifos_and_folders_are_never_replaced(gold, gold_json, tmp_path,
 
 # --- 3. deleting what the tool did not create ---------------------------------------------------
 
+
 def test_files_named_like_temporaries_are_never_deleted(tmp_path, stress_log):
     from addon.core.atomic import atomic_path, sweep_pending
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    user = {f".tmp-{dead.pid}-notes.json": b"mine", f".tmp-brdfm-{dead.pid}.binary": b"also mine",
-            ".tmp-1-x": b"old"}
+    user = {f".tmp-{dead.pid}-notes.json": b"mine", f".tmp-brdfm-{dead.pid}.binary": b"also mine", ".tmp-1-x": b"old"}
     for name, data in user.items():
         (tmp_path / name).write_bytes(data)
     with atomic_path(tmp_path / "out.json") as tmp, open(tmp, "w") as fh:
@@ -175,8 +179,12 @@ def test_operator_sweep_removes_only_marked_folders(tmp_path, stress_log):
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    foreign = ["operator-0123456789abcdef0123", f"operator-v{OPERATOR_VERSION - 1}-0123456789abcdef0123",
-               f".tmp-{dead.pid}-op-killed", f"{_OPERATOR_PREFIX}0123456789abcdef0123"]
+    foreign = [
+        "operator-0123456789abcdef0123",
+        f"operator-v{OPERATOR_VERSION - 1}-0123456789abcdef0123",
+        f".tmp-{dead.pid}-op-killed",
+        f"{_OPERATOR_PREFIX}0123456789abcdef0123",
+    ]
     ours_old = f"operator-v{OPERATOR_VERSION - 1}s-0123456789abcdef0123"
     for name in foreign + [ours_old]:
         (tmp_path / name).mkdir()
@@ -196,11 +204,16 @@ def test_operator_sweep_removes_only_marked_folders(tmp_path, stress_log):
 
 def test_a_killed_writer_temp_is_removed_only_while_it_is_the_same_file(tmp_path, stress_log):
     # The journal records the inode: a temp name reused by someone else's file is left alone.
-    code = ("import os, sys, time\nsys.path.insert(0, sys.argv[1])\nfrom addon.core.atomic import atomic_path\n"
-            "with atomic_path(sys.argv[2]) as tmp:\n    print(tmp, flush=True)\n    time.sleep(600)\n")
+    code = (
+        "import os, sys, time\nsys.path.insert(0, sys.argv[1])\nfrom addon.core.atomic import atomic_path\n"
+        "with atomic_path(sys.argv[2]) as tmp:\n    print(tmp, flush=True)\n    time.sleep(600)\n"
+    )
     for replaced in (False, True):
-        child = subprocess.Popen([sys.executable, "-c", code, ROOT, str(tmp_path / f"o{int(replaced)}.txt")],
-                                 stdout=subprocess.PIPE, text=True)
+        child = subprocess.Popen(
+            [sys.executable, "-c", code, ROOT, str(tmp_path / f"o{int(replaced)}.txt")],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         tmp = child.stdout.readline().strip()
         child.kill()
         child.wait(timeout=30)
@@ -216,8 +229,11 @@ def test_a_killed_writer_temp_is_removed_only_while_it_is_the_same_file(tmp_path
 
         sweep_pending()
         assert os.path.exists(tmp) == replaced
-        stress_log.record("nothing lost: 3 no foreign deletions", "valid",
-                          "same name, other file: kept" if replaced else "killed writer's temp: removed")
+        stress_log.record(
+            "nothing lost: 3 no foreign deletions",
+            "valid",
+            "same name, other file: kept" if replaced else "killed writer's temp: removed",
+        )
         if replaced:
             assert os.path.exists(tmp + ".moved")
             os.unlink(tmp)
@@ -225,6 +241,7 @@ def test_a_killed_writer_temp_is_removed_only_while_it_is_the_same_file(tmp_path
 
 
 # --- 4. images that would crash Blender -------------------------------------------------------
+
 
 def test_image_headers_are_checked_before_decoding(tmp_path, stress_log):
     from addon.core.limits import MAX_IMAGE_PIXELS
@@ -246,8 +263,9 @@ def test_image_headers_are_checked_before_decoding(tmp_path, stress_log):
     (tmp_path / "text.exr").write_text("this is not an image\n")
     (tmp_path / "empty.exr").write_bytes(b"")
     (tmp_path / "cut.exr").write_bytes(exr_bytes(64, 512)[:600])
-    (tmp_path / "zero.exr").write_bytes(exr_bytes(64, 32).replace(struct.pack("<4i", 0, 0, 63, 31),
-                                                                  struct.pack("<4i", 0, 0, -1, 31), 1))
+    (tmp_path / "zero.exr").write_bytes(
+        exr_bytes(64, 32).replace(struct.pack("<4i", 0, 0, 63, 31), struct.pack("<4i", 0, 0, -1, 31), 1)
+    )
     (tmp_path / "huge.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 100000\n" + bytes(64))
     (tmp_path / "nores.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\nnonsense\n")
     os.mkfifo(tmp_path / "fifo.exr")
@@ -272,8 +290,9 @@ def test_render_refuses_a_huge_map_on_both_paths_without_dying(gold, tmp_path, s
     big = tmp_path / "huge.exr"
     big.write_bytes(exr_bytes(30000, 15000, body=bytes(2_600_000)))
     for path in ("baked", "osl"):
-        res = run_cli("render", gold, "--env", big, "--path", path, "--size", "32", "--out", tmp_path / "o.png",
-                      timeout=300)
+        res = run_cli(
+            "render", gold, "--env", big, "--path", path, "--size", "32", "--out", tmp_path / "o.png", timeout=300
+        )
         line = assert_one_line_error(res, "huge.exr", "30000x15000")
         assert res.returncode == 2, line
         stress_log.record(ENV_CAT, "error", f"render --path {path} with a 30000x15000 EXR")
@@ -281,6 +300,7 @@ def test_render_refuses_a_huge_map_on_both_paths_without_dying(gold, tmp_path, s
 
 
 # --- 5. damaged caches ------------------------------------------------------------------------
+
 
 def test_an_operator_cache_with_changed_values_is_rebuilt(gold, tmp_path, stress_log):
     from addon.core import integrate
@@ -291,10 +311,12 @@ def test_an_operator_cache_with_changed_values_is_rebuilt(gold, tmp_path, stress
     integrate._MEMO.clear()
     (folder,) = [tmp_path / n for n in os.listdir(tmp_path) if n.startswith(integrate._OPERATOR_PREFIX)]
     fresh = build_operator_in_memory(views)
-    for case, part, damage in [("weights scaled, same size", "weights.npy", "scale"),
-                               ("cell index out of range", "cells.npy", "index"),
-                               ("truncated part", "local.npy", "truncate"),
-                               ("seal removed", "seal.json", "remove")]:
+    for case, part, damage in [
+        ("weights scaled, same size", "weights.npy", "scale"),
+        ("cell index out of range", "cells.npy", "index"),
+        ("truncated part", "local.npy", "truncate"),
+        ("seal removed", "seal.json", "remove"),
+    ]:
         path = folder / part
         if damage == "remove":
             path.unlink()
@@ -308,7 +330,7 @@ def test_an_operator_cache_with_changed_values_is_rebuilt(gold, tmp_path, stress
                 w = np.asarray(fresh.weights)  # the check below would see this damage
                 assert not (np.abs(arr - w) <= 1e-5 * np.abs(w).max(axis=0) + 1e-6 * np.abs(w)).all()
             else:
-                arr[len(arr) // 3] = 2 ** 30
+                arr[len(arr) // 3] = 2**30
             with open(path, "r+b") as fh:  # same header, same size: only the values change
                 fh.seek(os.path.getsize(path) - arr.nbytes)
                 fh.write(arr.tobytes())
@@ -331,14 +353,28 @@ def test_damaged_bake_cache_entries_are_baked_again(tmp_path, stress_log):
     from addon.core.render import BakeCache, Environment, MomentParams, ModelBRDF
 
     env = Environment.constant((0.5, 0.6, 0.7))
-    brdf = ModelBRDF(MomentParams(alpha_b=(0.3, 0.3, 0.3), alpha1=(0.0, 0.0, 0.0), m1=(0.0, 0.0, 0.0),
-                                  theta0=0.5, theta1=1.2, mu_slope=-0.9, sigma2=0.05, kd=(0.1, 0.1, 0.1)))
+    brdf = ModelBRDF(
+        MomentParams(
+            alpha_b=(0.3, 0.3, 0.3),
+            alpha1=(0.0, 0.0, 0.0),
+            m1=(0.0, 0.0, 0.0),
+            theta0=0.5,
+            theta1=1.2,
+            mu_slope=-0.9,
+            sigma2=0.05,
+            kd=(0.1, 0.1, 0.1),
+        )
+    )
     cache = BakeCache(str(tmp_path))
     rgb, cov, key = cache.get(brdf, env, 16, 8)
     (entry,) = [tmp_path / n for n in os.listdir(tmp_path) if n.startswith("bake-") and n.endswith(".npz")]
     good = entry.read_bytes()
-    for case, data in [("truncated", good[: len(good) // 2]), ("empty", b""), ("flipped bytes", good[:-40] +
-                        bytes(40)), ("not a zip", b"x" * len(good))]:
+    for case, data in [
+        ("truncated", good[: len(good) // 2]),
+        ("empty", b""),
+        ("flipped bytes", good[:-40] + bytes(40)),
+        ("not a zip", b"x" * len(good)),
+    ]:
         entry.write_bytes(data)
         fresh = BakeCache(str(tmp_path))
         got, _, _ = fresh.get(brdf, env, 16, 8)
@@ -358,13 +394,14 @@ def test_maps_are_validated_the_same_way_for_both_paths(stress_log):
     ringing = good.copy()
     ringing[0, 0, 0] = -1e-4  # filtering ringing, as in Blender's own courtyard.exr: accepted
     check_radiance(ringing)
-    for case, pix, fragment in [("all NaN", np.full((8, 16, 3), np.nan, np.float32), "NaN"),
-                                ("one inf", np.where(np.arange(8 * 16 * 3).reshape(8, 16, 3) == 5, np.inf, good),
-                                 "inf"),
-                                ("all negative", -good, "no light"), ("all zero", 0 * good, "no light"),
-                                ("half negative", np.concatenate([good[:4], -good[4:]]), "negative"),
-                                ("1 % negative", np.where(np.arange(8 * 16 * 3).reshape(8, 16, 3) == 7, -2.0, good),
-                                 "negative")]:
+    for case, pix, fragment in [
+        ("all NaN", np.full((8, 16, 3), np.nan, np.float32), "NaN"),
+        ("one inf", np.where(np.arange(8 * 16 * 3).reshape(8, 16, 3) == 5, np.inf, good), "inf"),
+        ("all negative", -good, "no light"),
+        ("all zero", 0 * good, "no light"),
+        ("half negative", np.concatenate([good[:4], -good[4:]]), "negative"),
+        ("1 % negative", np.where(np.arange(8 * 16 * 3).reshape(8, 16, 3) == 7, -2.0, good), "negative"),
+    ]:
         with pytest.raises(ValueError, match=fragment):
             check_radiance(pix, "map")
         stress_log.record("nothing lost: 5 damaged caches and bad maps", "error", f"map {case}")
@@ -404,16 +441,19 @@ def test_sealed_cache_entries_prove_what_they_hold_and_are_bounded(tmp_path, str
 
 # --- 6. hangs and unbounded sizes -----------------------------------------------------------
 
+
 def test_a_fifo_as_input_never_hangs(tmp_path, stress_log):
     fifo = tmp_path / "x.binary"
     os.mkfifo(fifo)
     jfifo = tmp_path / "p.json"
     os.mkfifo(jfifo)
-    for case, args in [("profiles", ["profiles", fifo, "--out", tmp_path / "o.json"]),
-                       ("fit", ["fit", jfifo, "--out", tmp_path / "o.json"]),
-                       ("fit MERL", ["fit", fifo, "--out", tmp_path / "o.json"]),
-                       ("edit", ["edit", fifo, "--out", tmp_path / "o.binary"]),
-                       ("analyze", ["analyze", fifo, "--out", tmp_path / "r", "--no-plots", "--jobs", "1"])]:
+    for case, args in [
+        ("profiles", ["profiles", fifo, "--out", tmp_path / "o.json"]),
+        ("fit", ["fit", jfifo, "--out", tmp_path / "o.json"]),
+        ("fit MERL", ["fit", fifo, "--out", tmp_path / "o.json"]),
+        ("edit", ["edit", fifo, "--out", tmp_path / "o.binary"]),
+        ("analyze", ["analyze", fifo, "--out", tmp_path / "r", "--no-plots", "--jobs", "1"]),
+    ]:
         res = run_cli(*args, timeout=120)
         assert_one_line_error(res, "FIFO", progress="analysing: ")
         stress_log.record("nothing lost: 6 hangs and bounds", "error", f"FIFO input to {case}")
@@ -423,12 +463,14 @@ def test_a_fifo_as_input_never_hangs(tmp_path, stress_log):
 def test_every_size_has_a_bound_on_the_command_line(gold, tmp_path, stress_log):
     from addon.core import limits
 
-    cases = [(["profiles", gold, "--out", tmp_path / "o.json", "--elevations", "100000"], "at most 360"),
-             (["render", gold, "--out", tmp_path / "o.png", "--size", "100000"], f"at most {limits.MAX_RENDER_SIZE}"),
-             (["render", gold, "--out", tmp_path / "o.png", "--bake-samples", "99999999999"], "at most"),
-             (["render", gold, "--out", tmp_path / "o.png", "--samples", "1000000"], "at most"),
-             (["render", gold, "--out", tmp_path / "o.png", "--lobe-samples", "1000000"], "at most"),
-             (["analyze", gold, "--out", tmp_path / "r", "--jobs", "100000"], "at most")]
+    cases = [
+        (["profiles", gold, "--out", tmp_path / "o.json", "--elevations", "100000"], "at most 360"),
+        (["render", gold, "--out", tmp_path / "o.png", "--size", "100000"], f"at most {limits.MAX_RENDER_SIZE}"),
+        (["render", gold, "--out", tmp_path / "o.png", "--bake-samples", "99999999999"], "at most"),
+        (["render", gold, "--out", tmp_path / "o.png", "--samples", "1000000"], "at most"),
+        (["render", gold, "--out", tmp_path / "o.png", "--lobe-samples", "1000000"], "at most"),
+        (["analyze", gold, "--out", tmp_path / "r", "--jobs", "100000"], "at most"),
+    ]
     for args, fragment in cases:
         res = run_cli(*args, timeout=60)
         assert_one_line_error(res, fragment)
@@ -447,14 +489,21 @@ def test_operator_properties_share_the_bounds():
         assert "max=MAX_RENDER_SIZE" in fh.read()
     assert limits.MAX_RENDER_SIZE == 4096 and limits.check_int(16, "Size", 16, 4096) == 16
     with pytest.raises(ValueError, match="between"):
-        limits.check_int(10 ** 12, "Samples", 1, limits.MAX_SAMPLES)
+        limits.check_int(10**12, "Samples", 1, limits.MAX_SAMPLES)
 
 
 def _interrupt(cmd, wait_for, tmp_path, env=None, timeout=60):
     """Start ``python -m addon cmd`` in its own process group, wait until ``wait_for()`` holds,
     send SIGINT to the group (as a terminal's Ctrl-C does) and time the exit."""
-    child = subprocess.Popen([sys.executable, "-m", "addon", *map(str, cmd)], cwd=ROOT, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True, env=env or dict(os.environ), start_new_session=True)
+    child = subprocess.Popen(
+        [sys.executable, "-m", "addon", *map(str, cmd)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env or dict(os.environ),
+        start_new_session=True,
+    )
     t0 = time.monotonic()
     while not wait_for() and child.poll() is None and time.monotonic() - t0 < timeout:
         time.sleep(0.05)
@@ -485,13 +534,31 @@ def test_ctrl_c_stops_edit_analyze_and_a_cold_build_promptly(gold, tmp_path, str
     def building():
         return lambda: cold.exists() and any(n.startswith(".tmp-brdfm-op") for n in os.listdir(cold))
 
-    cases = [("edit", ["edit", gold, "--out", out, "--sigma2", "0.02"], lambda: after(2.5), None),
-             # gold plus the 51 RGL networks (decoded on the way): far more than the 2 s before the
-             # interrupt even on a quiet machine, where one file alone was done in time.
-             ("analyze", ["analyze", gold, os.path.join(ROOT, "samples", "measured", "nbrdf-rgl-isotropic.npz"),
-                          "--out", tmp_path / "r", "--jobs", "2"], lambda: after(2.0), None),
-             ("cold build", ["profiles", gold, "--out", tmp_path / "p.json"], building,
-              dict(os.environ, BRDF_MOMENTS_CACHE=str(cold)))]
+    cases = [
+        ("edit", ["edit", gold, "--out", out, "--sigma2", "0.02"], lambda: after(2.5), None),
+        # gold plus the 51 RGL networks (decoded on the way): far more than the 2 s before the
+        # interrupt even on a quiet machine, where one file alone was done in time.
+        (
+            "analyze",
+            [
+                "analyze",
+                gold,
+                os.path.join(ROOT, "samples", "measured", "nbrdf-rgl-isotropic.npz"),
+                "--out",
+                tmp_path / "r",
+                "--jobs",
+                "2",
+            ],
+            lambda: after(2.0),
+            None,
+        ),
+        (
+            "cold build",
+            ["profiles", gold, "--out", tmp_path / "p.json"],
+            building,
+            dict(os.environ, BRDF_MOMENTS_CACHE=str(cold)),
+        ),
+    ]
     for name, cmd, ready, env_ in cases:
         code, err, took = _interrupt(cmd, ready(), tmp_path, env_)
         lines = err.strip().splitlines()
@@ -521,8 +588,12 @@ def test_ctrl_c_stops_a_render_promptly_and_leaves_nothing(gold, tmp_path, stres
     scratch_before = set(glob.glob(os.path.join(tempfile.gettempdir(), "brdfm-render-*")))
     out = tmp_path / "r.png"
     t0 = time.monotonic()
-    code, err, took = _interrupt(["render", gold, "--path", "baked", "--size", "1024", "--bake-samples", "4096",
-                                  "--out", out], lambda: time.monotonic() - t0 > 12, tmp_path, timeout=60)
+    code, err, took = _interrupt(
+        ["render", gold, "--path", "baked", "--size", "1024", "--bake-samples", "4096", "--out", out],
+        lambda: time.monotonic() - t0 > 12,
+        tmp_path,
+        timeout=60,
+    )
     assert code == 130 and err.strip().splitlines()[-1].startswith("interrupted"), err
     assert took < 10, took
     assert list(tmp_path.iterdir()) == []
@@ -532,6 +603,7 @@ def test_ctrl_c_stops_a_render_promptly_and_leaves_nothing(gold, tmp_path, stres
 
 
 # --- 7. tracebacks instead of one line ----------------------------------------------------------
+
 
 def test_malformed_profiles_json_is_one_line(gold_json, tmp_path, stress_log):
     good = json.loads(gold_json.read_text())
@@ -568,8 +640,9 @@ def test_bad_cache_and_samples_settings_are_one_line(tmp_path, stress_log):
     notadir = tmp_path / "file"
     notadir.write_text("x")
     env = dict(os.environ, BRDF_MOMENTS_SAMPLES=str(notadir))
-    res = subprocess.run([sys.executable, "-m", "samples", "gold"], cwd=ROOT, env=env, capture_output=True,
-                         text=True, timeout=60)
+    res = subprocess.run(
+        [sys.executable, "-m", "samples", "gold"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60
+    )
     assert_one_line_error(res, "BRDF_MOMENTS_SAMPLES")
     stress_log.record("nothing lost: 7 one line, no traceback", "error", "BRDF_MOMENTS_SAMPLES is a file")
 
@@ -582,10 +655,29 @@ def test_damaged_stored_profiles_are_refused_in_one_line(blender, stress_log):
     from addon.core.profiles import Profiles
 
     n = 4
-    ch = {c: {k: np.linspace(0.1, 0.4, n) for k in ("alpha", "mu_theta", "mu_phi", "sigma_tt", "sigma_tp",
-                                                     "sigma_pp", "skew_30", "skew_21", "skew_12", "skew_03",
-                                                     "kurt_40", "kurt_31", "kurt_22", "kurt_13", "kurt_04")}
-          for c in ("r", "g", "b", "avg")}
+    ch = {
+        c: {
+            k: np.linspace(0.1, 0.4, n)
+            for k in (
+                "alpha",
+                "mu_theta",
+                "mu_phi",
+                "sigma_tt",
+                "sigma_tp",
+                "sigma_pp",
+                "skew_30",
+                "skew_21",
+                "skew_12",
+                "skew_03",
+                "kurt_40",
+                "kurt_31",
+                "kurt_22",
+                "kurt_13",
+                "kurt_04",
+            )
+        }
+        for c in ("r", "g", "b", "avg")
+    }
     text = pack_profiles(Profiles(np.linspace(0, 1, n), np.zeros(3), ch))
     assert unpack_profiles(text).theta_o.shape == (n,)
     raw = np.frombuffer(base64.b64decode(text), "<f4").copy()
@@ -603,6 +695,7 @@ def test_damaged_stored_profiles_are_refused_in_one_line(blender, stress_log):
 
 
 # --- 8. name collisions -------------------------------------------------------------------------
+
 
 def test_distinct_inputs_get_distinct_outputs(gold, tmp_path, stress_log):
     from addon.core.names import collisions, distinct_name
@@ -627,6 +720,7 @@ def test_distinct_inputs_get_distinct_outputs(gold, tmp_path, stress_log):
 
 
 # --- 9. leftovers -------------------------------------------------------------------------------
+
 
 def test_a_failed_analyze_leaves_nothing(gold, tmp_path, monkeypatch, stress_log):
     import addon.tools.analyze as an
@@ -683,6 +777,7 @@ def test_an_interrupted_build_removes_its_temporary_folder(tmp_path, stress_log)
         pass
 
     for exc in (Stop, KeyboardInterrupt):
+
         def prog(done, total, exc=exc):
             if done == 2:
                 raise exc()
@@ -702,7 +797,7 @@ def test_a_render_child_that_dies_is_one_line(gold, tmp_path, monkeypatch, stres
     import addon.tools.render_command as rc
 
     class Died:
-        pid = 2 ** 22 + 12345  # no such process: its journal entries, if any, are swept
+        pid = 2**22 + 12345  # no such process: its journal entries, if any, are swept
 
         def __init__(self, *a, **k):
             pass
@@ -740,9 +835,13 @@ def test_npz_inputs_are_bounded_before_unpacking(tmp_path, stress_log):
     text.write_text("not a zip")
     fifo = tmp_path / "fifo.npz"
     os.mkfifo(fifo)
-    for case, path, fragment in [("zip bomb", bomb, "unpacks to"), ("object array", pickled, "not a valid"),
-                                 ("text", text, "not a valid"), ("FIFO", fifo, "FIFO"),
-                                 ("too large", ok, "too large")]:
+    for case, path, fragment in [
+        ("zip bomb", bomb, "unpacks to"),
+        ("object array", pickled, "not a valid"),
+        ("text", text, "not a valid"),
+        ("FIFO", fifo, "FIFO"),
+        ("too large", ok, "too large"),
+    ]:
         with pytest.raises(UnsafePath, match=fragment):
             load_npz(path, 100 if case == "too large" else 1 << 20)
         stress_log.record("nothing lost: 6 hangs and bounds", "error", f".npz input: {case}")

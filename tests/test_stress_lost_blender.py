@@ -42,8 +42,10 @@ def _maps(bpy, folder):
     maps["text named .exr"] = (text, "not an OpenEXR file")
     nan = np.full((16, 32, 3), np.nan, np.float32)
     maps["all-NaN map"] = (write_environment(nan, str(folder / "nan.exr")), "NaN")
-    maps["all-negative map"] = (write_environment(np.full((16, 32, 3), -1.0, np.float32), str(folder / "neg.exr")),
-                                "no light")
+    maps["all-negative map"] = (
+        write_environment(np.full((16, 32, 3), -1.0, np.float32), str(folder / "neg.exr")),
+        "no light",
+    )
     return maps
 
 
@@ -57,8 +59,9 @@ def test_build_preview_refuses_bad_maps_on_both_paths_and_blender_lives(analysed
     for case, (path, fragment) in maps.items():
         for route in paths:
             with pytest.raises(RuntimeError) as info:
-                bpy.ops.brdf_moments.build_preview(material="Gold", path=route, mode="TABULATED", size=16,
-                                                   samples=1, env=str(path))
+                bpy.ops.brdf_moments.build_preview(
+                    material="Gold", path=route, mode="TABULATED", size=16, samples=1, env=str(path)
+                )
             assert fragment in str(info.value) and "Traceback" not in str(info.value), str(info.value)
             stress_log.record(CAT, "error", f"Build Preview ({route.lower()}) with {case}")
     assert {k: sha256(p) for k, (p, _) in maps.items()} == digests
@@ -74,8 +77,9 @@ def test_build_preview_never_renders_over_its_map(analysed_gold, tmp_path, stres
     digest = sha256(env)
     for target in (env, str(src)):
         with pytest.raises(RuntimeError, match="overwrite the input"):
-            bpy.ops.brdf_moments.build_preview(material="Gold", path="BAKED", size=16, samples=1, env=env,
-                                               render_to=target)
+            bpy.ops.brdf_moments.build_preview(
+                material="Gold", path="BAKED", size=16, samples=1, env=env, render_to=target
+            )
         stress_log.record(CAT, "error", f"Build Preview render_to = its {'map' if target == env else 'table'}")
     assert sha256(env) == digest
     assert sha256(src) == sha256(tmp_path / "gold.binary")

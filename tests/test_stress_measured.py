@@ -5,7 +5,6 @@ Measured tables differ from the analytic samples: noise, grazing extrapolation, 
 changes with angle, floors near zero, variances above the Lambertian's, slopes past the mirror.
 """
 
-
 import numpy as np
 import pytest
 
@@ -21,8 +20,14 @@ pytestmark = pytest.mark.stress
 
 # Across kinds: a near-Lambertian white, a retro-reflective satin, a metal, a cloth whose
 # variance exceeds the Lambertian's, a coat whose slope passes the mirror, a felt with sheen.
-KINDS = ["rgl/spectralon", "rgl/satin_gold", "rgl/ilm_l3_37_metallic", "nielsen/greencloth",
-         "rgl/cc_iris_purple_gem", "rgl/acrylic_felt_white"]
+KINDS = [
+    "rgl/spectralon",
+    "rgl/satin_gold",
+    "rgl/ilm_l3_37_metallic",
+    "nielsen/greencloth",
+    "rgl/cc_iris_purple_gem",
+    "rgl/acrylic_felt_white",
+]
 _TABLES = {}
 
 
@@ -46,8 +51,9 @@ def test_measured_tables_at_grazing_views_are_finite_and_fit(stress_log, name, f
     fit = fit_material(compute_profiles(table, default_views(30, 89.0), floor=floor))
     assert_finite_tree({k: v for k, v in fit.items() if k != "notes"})
     outside = fit["outside_model"] or bool(fit["notes"])
-    stress_log.record("measured materials (profiles and fits)", "clamped" if outside else "valid",
-                      f"{name}, floor {floor}")
+    stress_log.record(
+        "measured materials (profiles and fits)", "clamped" if outside else "valid", f"{name}, floor {floor}"
+    )
 
 
 def test_fitted_values_outside_the_slider_ranges_are_clamped_when_asked_for(stress_log):
@@ -69,11 +75,14 @@ def test_fitted_values_outside_the_slider_ranges_are_clamped_when_asked_for(stre
         stress_log.record("measured materials (slider clamps)", "clamped", f"{name} {field}={value:.4f}")
 
 
-@pytest.mark.parametrize("name, targets", [
-    ("rgl/satin_gold", dict(sigma2_scale=0.7)),
-    ("nielsen/greencloth", dict(mu_slope=-0.8, sigma2=10.0)),
-    ("rgl/ilm_l3_37_metallic", dict(strength=3.0, colour=(1.0, 0.5, 1e-30))),
-])
+@pytest.mark.parametrize(
+    "name, targets",
+    [
+        ("rgl/satin_gold", dict(sigma2_scale=0.7)),
+        ("nielsen/greencloth", dict(mu_slope=-0.8, sigma2=10.0)),
+        ("rgl/ilm_l3_37_metallic", dict(strength=3.0, colour=(1.0, 0.5, 1e-30))),
+    ],
+)
 def test_edits_of_measured_tables_give_valid_tables(stress_log, tmp_path, name, targets):
     table = measured(name)
     before = table.rho.copy()
@@ -99,5 +108,4 @@ def test_edits_of_measured_tables_give_valid_tables(stress_log, tmp_path, name, 
     path = tmp_path / "edited.binary"
     write_merl(out, path)
     np.testing.assert_allclose(read_merl(path).rho, out.rho, rtol=1e-15, atol=0)
-    stress_log.record("measured materials (full edits)", "clamped" if res.warnings else "valid",
-                      f"{name} {targets}")
+    stress_log.record("measured materials (full edits)", "clamped" if res.warnings else "valid", f"{name} {targets}")

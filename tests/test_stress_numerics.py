@@ -23,7 +23,7 @@ from addon.core.quadrature import RuleParams, slice_rule
 pytestmark = pytest.mark.stress
 
 H = math.pi / 2
-LAMBERT = math.pi ** 2 / 12
+LAMBERT = math.pi**2 / 12
 
 
 def _truncnorm(m, s):
@@ -51,12 +51,16 @@ def test_analytic_lobes_match_closed_forms_at_every_view(stress_log, sigma, wher
         m = {"mirror": -to, "normal": 0.0, "far": 0.8, "lambertian": 0.0}[where]
         s_phi = min(sigma, 2.0)
         if where == "lambertian":
+
             def f(theta, phi, _):
                 return np.ones((1,) + np.shape(theta))
+
             mt = mp = _uniform()
         else:
+
             def f(theta, phi, _, m=m, s=sigma, sp=s_phi):
                 return np.exp(-0.5 * ((theta - m) / s) ** 2 - 0.5 * (phi / sp) ** 2)[None]
+
             mt, mp = _truncnorm(m, sigma), _truncnorm(0.0, s_phi)
         # A lobe narrower than the peak search's grid must be pointed at (the function
         # interface cannot find a needle it never samples; see integrate.find_peak).
@@ -78,7 +82,7 @@ def test_binomial_shift_is_exact_when_centred_and_measures_its_own_cancellation(
     # Raw moments of N(m, s^2) (untruncated, s tiny: the truncation is below 1e-300) about
     # two centres: at the lobe, and 1.5 rad away.
     m, s = 0.3, 1e-4
-    central = {0: 1.0, 1: 0.0, 2: s ** 2, 3: 0.0, 4: 3 * s ** 4}
+    central = {0: 1.0, 1: 0.0, 2: s**2, 3: 0.0, 4: 3 * s**4}
 
     def raw_about(c):
         d = m - c
@@ -118,8 +122,17 @@ def _two_pass_reference(rule, cells, v):
     return {k: v_[0, 0] for k, v_ in profiles_from_sums(s[None, None], np.array([[mt]]), centre_phi=mp).items()}
 
 
-@pytest.mark.parametrize("to_deg, centre, half", [(60.0, -0.3, 0.004), (60.0, 0.5, 0.01), (60.0, 0.5, 0.3),
-                                                  (85.0, 0.0, 0.01), (89.9, 1.2, 0.02), (30.0, -0.52, 0.002)])
+@pytest.mark.parametrize(
+    "to_deg, centre, half",
+    [
+        (60.0, -0.3, 0.004),
+        (60.0, 0.5, 0.01),
+        (60.0, 0.5, 0.3),
+        (85.0, 0.0, 0.01),
+        (89.9, 1.2, 0.02),
+        (30.0, -0.52, 0.002),
+    ],
+)
 def test_table_lobe_far_from_the_mirror_keeps_its_higher_moments(stress_log, to_deg, centre, half):
     to = math.radians(to_deg)
     table, rule, cells, v = _off_mirror_table(to, centre, half)
@@ -148,7 +161,8 @@ def test_without_recentring_the_float32_shift_would_lose_the_kurtosis():
     assert shift_amplification(sums)[0, 3] > 1e6
     assert abs(naive["kurt_40"][0, 3] - ref["kurt_40"]) > 0.1  # digits gone: the bug this guards against
     assert compute_profiles(table, np.array([to]), split=False)["avg"]["kurt_40"][0] == pytest.approx(
-        ref["kurt_40"], abs=1e-4)
+        ref["kurt_40"], abs=1e-4
+    )
 
 
 def test_lambertian_table_up_to_89_9_degrees(stress_log):
@@ -260,5 +274,5 @@ def test_the_operator_cache_keeps_the_most_recently_used_within_its_bound(tmp_pa
     left = sorted(n for n in os.listdir(tmp_path) if n.startswith(_OPERATOR_PREFIX))
     assert len(left) == OPERATOR_CACHE_MAX_ENTRIES
     # the new one (most recent) and the newest of the others stay
-    assert set(names[-(OPERATOR_CACHE_MAX_ENTRIES - 1):]) <= set(left)
+    assert set(names[-(OPERATOR_CACHE_MAX_ENTRIES - 1) :]) <= set(left)
     _MEMO.clear()

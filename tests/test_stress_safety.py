@@ -49,10 +49,28 @@ def _dotted(node):
 
 
 UNSAFE_MODULES = {"pickle", "cPickle", "_pickle", "marshal", "shelve", "dill", "cloudpickle", "joblib"}
-UNSAFE_CALLS = {"eval", "exec", "os.system", "os.popen", "subprocess.getoutput", "subprocess.getstatusoutput",
-                "pickle.load", "pickle.loads", "yaml.load", "yaml.unsafe_load", "pty.spawn", "os.execl", "os.spawnl"}
-SUBPROCESS_CALLS = {"subprocess.run", "subprocess.Popen", "subprocess.call", "subprocess.check_call",
-                    "subprocess.check_output"}
+UNSAFE_CALLS = {
+    "eval",
+    "exec",
+    "os.system",
+    "os.popen",
+    "subprocess.getoutput",
+    "subprocess.getstatusoutput",
+    "pickle.load",
+    "pickle.loads",
+    "yaml.load",
+    "yaml.unsafe_load",
+    "pty.spawn",
+    "os.execl",
+    "os.spawnl",
+}
+SUBPROCESS_CALLS = {
+    "subprocess.run",
+    "subprocess.Popen",
+    "subprocess.call",
+    "subprocess.check_call",
+    "subprocess.check_output",
+}
 
 
 def test_the_product_code_is_scanned():
@@ -74,7 +92,9 @@ def test_no_unpickling_eval_exec_or_shell_anywhere_in_the_product(stress_log):
         for node in ast.walk(tree):
             if isinstance(node, (ast.Import, ast.ImportFrom)):
                 names = [a.name for a in node.names] + ([node.module] if isinstance(node, ast.ImportFrom) else [])
-                bad = [n for n in names if n and n.split(".")[0] in UNSAFE_MODULES and not (pickle_ok and n == "pickle")]
+                bad = [
+                    n for n in names if n and n.split(".")[0] in UNSAFE_MODULES and not (pickle_ok and n == "pickle")
+                ]
                 if bad:
                     problems.append(f"{rel}:{node.lineno} imports {bad}")
             if not isinstance(node, ast.Call):
@@ -87,16 +107,24 @@ def test_no_unpickling_eval_exec_or_shell_anywhere_in_the_product(stress_log):
             for kw in node.keywords:
                 if kw.arg == "shell" and not (isinstance(kw.value, ast.Constant) and kw.value.value is False):
                     problems.append(f"{rel}:{node.lineno} passes shell={ast.unparse(kw.value)}")
-            if name in SUBPROCESS_CALLS and node.args and isinstance(node.args[0], (ast.Constant, ast.JoinedStr,
-                                                                                    ast.BinOp)):
+            if (
+                name in SUBPROCESS_CALLS
+                and node.args
+                and isinstance(node.args[0], (ast.Constant, ast.JoinedStr, ast.BinOp))
+            ):
                 problems.append(f"{rel}:{node.lineno} runs a command line string (use an argument list)")
             if name.endswith(".load") and name.split(".")[0] in ("np", "numpy"):
                 for kw in node.keywords:
-                    if kw.arg == "allow_pickle" and not (isinstance(kw.value, ast.Constant) and kw.value.value is False):
+                    if kw.arg == "allow_pickle" and not (
+                        isinstance(kw.value, ast.Constant) and kw.value.value is False
+                    ):
                         problems.append(f"{rel}:{node.lineno} np.load with allow_pickle={ast.unparse(kw.value)}")
     assert problems == []
-    stress_log.record("safety: code scan", "valid", f"{len(_product_files())} files, no eval/exec/shell, no pickle "
-                      "but the job pipe from its own forked child")
+    stress_log.record(
+        "safety: code scan",
+        "valid",
+        f"{len(_product_files())} files, no eval/exec/shell, no pickle but the job pipe from its own forked child",
+    )
 
 
 def test_numpy_load_refuses_pickles_by_default():
@@ -134,8 +162,14 @@ def test_profiles_json_with_code_in_it_is_data_only(tmp_path, stress_log):
 
 # --- paths used as given ----------------------------------------------------------------------
 
-NASTY = ["a b; $(touch PWNED) `touch PWNED2`", "quote ' and \" and |cat", "dash -rf --out", "ünïcødé ✓", "*?[x]",
-         "tab\tand\nnewline"]
+NASTY = [
+    "a b; $(touch PWNED) `touch PWNED2`",
+    "quote ' and \" and |cat",
+    "dash -rf --out",
+    "ünïcødé ✓",
+    "*?[x]",
+    "tab\tand\nnewline",
+]
 
 
 @pytest.mark.parametrize("name", NASTY)
@@ -176,9 +210,29 @@ def test_load_merl_uses_an_odd_path_literally(fresh, tmp_path, stress_log):
 
 # --- export names -----------------------------------------------------------------------------
 
-ESCAPES = ["../evil", "../../etc/passwd", "/abs/path", "a/../../b", "..", ".", "", "..\\..\\win", "C:\\x\\y",
-           "nul", "CON.txt", ".hidden", "name\x00with nul", "line\nbreak", "x" * 400, "é" * 300, "  . ",
-           "a/b/c", "~/home", "$HOME", "%APPDATA%"]
+ESCAPES = [
+    "../evil",
+    "../../etc/passwd",
+    "/abs/path",
+    "a/../../b",
+    "..",
+    ".",
+    "",
+    "..\\..\\win",
+    "C:\\x\\y",
+    "nul",
+    "CON.txt",
+    ".hidden",
+    "name\x00with nul",
+    "line\nbreak",
+    "x" * 400,
+    "é" * 300,
+    "  . ",
+    "a/b/c",
+    "~/home",
+    "$HOME",
+    "%APPDATA%",
+]
 
 
 @pytest.mark.parametrize("name", ESCAPES)
@@ -209,7 +263,9 @@ def test_a_link_planted_in_the_folder_cannot_redirect_an_export(tmp_path, stress
     stress_log.record("safety: export names", "error", "symlink out of the folder")
 
 
-@settings(max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(name=st.text(min_size=0, max_size=300))
 @example(name="x" * 400)
 @example(name="..")
@@ -232,8 +288,10 @@ def test_any_text_becomes_a_file_name_inside_the_folder(tmp_path, stress_log, na
 
 # An OSL shader header (a parameter list with OSL types) or a closure declaration; English
 # prose in docstrings ("the OSL shader renders ...") does not match.
-OSL_SOURCE = re.compile(r"\b(shader|surface)\s+\w+\s*\(\s*(output\s+)?(float|color|point|vector|normal|string|int|"
-                        r"closure)\b|\bclosure\s+color\s+\w+|\boutput\s+closure\b")
+OSL_SOURCE = re.compile(
+    r"\b(shader|surface)\s+\w+\s*\(\s*(output\s+)?(float|color|point|vector|normal|string|int|"
+    r"closure)\b|\bclosure\s+color\s+\w+|\boutput\s+closure\b"
+)
 
 
 def test_no_python_code_carries_or_builds_osl_source(stress_log):
@@ -249,8 +307,12 @@ def test_no_python_code_carries_or_builds_osl_source(stress_log):
                 text = "".join(v.value for v in node.values if isinstance(v, ast.Constant))
                 if OSL_SOURCE.search(text) or ".osl" in text:
                     problems.append(f"{rel}:{node.lineno} formats OSL source or an .osl name")
-            if isinstance(node, ast.Call) and _dotted(node.func).endswith("osl_compile") and node.args and \
-                    isinstance(node.args[0], (ast.JoinedStr, ast.BinOp)):
+            if (
+                isinstance(node, ast.Call)
+                and _dotted(node.func).endswith("osl_compile")
+                and node.args
+                and isinstance(node.args[0], (ast.JoinedStr, ast.BinOp))
+            ):
                 problems.append(f"{rel}:{node.lineno} compiles OSL built from pieces")
     assert problems == []
     stress_log.record("safety: OSL", "valid", "no OSL source in Python")

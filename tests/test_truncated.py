@@ -52,7 +52,7 @@ def test_reachable_targets_are_solved_exactly():
 def test_out_of_reach_keeps_the_mean_and_caps_the_variance():
     # The example: mean -1.0, variance 0.3 (above the limit 0.2963 at that mean).
     m, s, used = T.solve(np.array([-1.0]), np.array([0.3]))
-    cap = _exp_density_moments(-2.682562196544281 / H)[1]   # the rate whose mean is -1.0
+    cap = _exp_density_moments(-2.682562196544281 / H)[1]  # the rate whose mean is -1.0
     assert used[0] == pytest.approx(T.CAP_FRACTION * cap, rel=1e-6)
     mt, vt = truncnorm.stats((-H - m) / s, (H - m) / s, loc=m, scale=s, moments="mv")
     assert mt[0] == pytest.approx(-1.0, abs=1e-9)

@@ -42,19 +42,45 @@ def lane(tmp_path_factory):
     import samples
 
     tmp = tmp_path_factory.mktemp("windowed")
-    built = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "package.py"), str(tmp / "dist")],
-                           capture_output=True, text=True, check=True).stdout.split()
+    built = subprocess.run(
+        [sys.executable, os.path.join(ROOT, "scripts", "package.py"), str(tmp / "dist")],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
     legacy = next(p for p in built if p.endswith("-legacy.zip"))
     gold, other = tmp / "gold.binary", tmp / "rough.binary"
     shutil.copy(samples.sample_path("gold"), gold)
     shutil.copy(samples.sample_path("ggx_rough"), other)
     out = tmp / "out"
     env = dict(os.environ, BLENDER_USER_SCRIPTS=str(tmp / "scripts"), BLENDER_USER_CONFIG=str(tmp / "config"))
-    res = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1920x1080x24", "blender", "--factory-startup",
-                          "--python-exit-code", "1", "--python-expr", INSTALL.format(zip=legacy),
-                          "--python", os.path.join(ROOT, "tests", "windowed", "drive.py"), "--",
-                          "--out", str(out), "--gold", str(gold), "--other", str(other)],
-                         capture_output=True, text=True, env=env, timeout=1500)
+    res = subprocess.run(
+        [
+            "xvfb-run",
+            "-a",
+            "-s",
+            "-screen 0 1920x1080x24",
+            "blender",
+            "--factory-startup",
+            "--python-exit-code",
+            "1",
+            "--python-expr",
+            INSTALL.format(zip=legacy),
+            "--python",
+            os.path.join(ROOT, "tests", "windowed", "drive.py"),
+            "--",
+            "--out",
+            str(out),
+            "--gold",
+            str(gold),
+            "--other",
+            str(other),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=1500,
+    )
     log = res.stdout + res.stderr
     # Kept for a person to look at (git-ignored): what the artist saw at each step.
     shutil.rmtree(ARTIFACTS, ignore_errors=True)
@@ -71,8 +97,9 @@ def lane(tmp_path_factory):
 
 
 def edit_fields(state):
-    return {k: state[k] for k in ("edited_path", "edited_profiles", "achieved_mu_slope", "achieved_sigma2",
-                                  "edit_warnings")}
+    return {
+        k: state[k] for k in ("edited_path", "edited_profiles", "achieved_mu_slope", "achieved_sigma2", "edit_warnings")
+    }
 
 
 def analysis_fields(state):
@@ -84,8 +111,21 @@ def test_the_session_ran_to_the_end_without_a_traceback(lane):
     assert data["errors"] == [], data["errors"]
     assert data["blender"].startswith("3.4")
     assert "windowed: installed" in log and "Traceback" not in log
-    assert list(data["steps"]) == ["start", "load_missing", "load", "load_cancelled", "analyse", "sliders", "apply",
-                                   "apply_cancelled", "undo", "redo", "build_preview", "save", "reopen"]
+    assert list(data["steps"]) == [
+        "start",
+        "load_missing",
+        "load",
+        "load_cancelled",
+        "analyse",
+        "sliders",
+        "apply",
+        "apply_cancelled",
+        "undo",
+        "redo",
+        "build_preview",
+        "save",
+        "reopen",
+    ]
 
 
 def test_load_a_missing_file_then_a_good_one_then_cancel_one(lane):
@@ -122,8 +162,8 @@ def test_input_reaches_the_ui_while_apply_runs(lane):
     data, _, _, _ = lane
     inp = data["input"]
     assert inp["sidebar_after"] != inp["sidebar_before"]  # the N key toggled the 3D view's sidebar
-    assert inp["job_running_after_key"]                  # ... while the job was running
-    assert inp["job_running_after_right_click"]          # a right-click did not cancel it
+    assert inp["job_running_after_key"]  # ... while the job was running
+    assert inp["job_running_after_right_click"]  # a right-click did not cancel it
     assert data["steps"]["apply"]["job"]["outcome"] == "finished"
     # The probe handler behind the job got the key and the right-click while the job ran,
     # and not the Esc that cancelled the second Apply (the job keeps that one).
@@ -183,8 +223,18 @@ def test_build_preview_then_save_and_reopen(lane):
     assert prev["state"]["preview_material"] and "BRDF Moments Preview" in prev["state"]["scenes"]
     back, saved = st["reopen"]["state"], st["save"]["state"]
     assert os.path.isfile(st["save"]["blend"])
-    for key in ("source_path", "profiles", "fit_mu_slope", "fit_sigma2", "mu_slope", "sigma2", "edited_path",
-                "edited_profiles", "achieved_sigma2", "preview_material"):
+    for key in (
+        "source_path",
+        "profiles",
+        "fit_mu_slope",
+        "fit_sigma2",
+        "mu_slope",
+        "sigma2",
+        "edited_path",
+        "edited_profiles",
+        "achieved_sigma2",
+        "preview_material",
+    ):
         assert back[key] == saved[key], key
     assert back["scenes"] == saved["scenes"]
 
@@ -200,11 +250,15 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
     data, _, _, _ = lane
     jobs, idle = data["jobs"], data["idle"]
     assert {j["label"] for j in jobs} >= {"Analysing", "Re-synthesizing"}
-    print(f"\n{'idle control':>16} {'':>9}: {idle['end'] - idle['start']:6.1f} s, main loop {idle['largest_gap']:.3f} s, "
-          f"GIL {idle['largest_gil_gap']:.3f} s, load {idle['loadavg'][0]:.1f}")
+    print(
+        f"\n{'idle control':>16} {'':>9}: {idle['end'] - idle['start']:6.1f} s, main loop {idle['largest_gap']:.3f} s, "
+        f"GIL {idle['largest_gil_gap']:.3f} s, load {idle['loadavg'][0]:.1f}"
+    )
     for j in jobs:
-        print(f"{j['label']:>16} {j['outcome']:>9}: {j['seconds']:6.1f} s, main loop {j['largest_gap']:.3f} s, "
-              f"GIL {j['largest_gil_gap']:.3f} s")
+        print(
+            f"{j['label']:>16} {j['outcome']:>9}: {j['seconds']:6.1f} s, main loop {j['largest_gap']:.3f} s, "
+            f"GIL {j['largest_gil_gap']:.3f} s"
+        )
     for j in jobs:
         assert j["largest_gil_gap"] < 0.3, j
         # No freeze beyond what the same machine shows idle (work on the main thread would

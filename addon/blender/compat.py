@@ -28,4 +28,3 @@ def fix_sampling_pattern(cycles) -> str:
             continue
         return pattern
     return cycles.sampling_pattern
-

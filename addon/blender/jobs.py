@@ -45,8 +45,7 @@ def running() -> list:
 
 def _ended(op, outcome):
     label, mat = _RUNNING.pop(id(op), (op.job_label, ""))
-    HISTORY.append({"label": label, "material": mat, "outcome": outcome, "start": op._started,
-                    "end": time.monotonic()})
+    HISTORY.append({"label": label, "material": mat, "outcome": outcome, "start": op._started, "end": time.monotonic()})
     del HISTORY[:-50]
 
 
@@ -218,8 +217,9 @@ class BackgroundJob:
         fork = _fork_context() if self.use_process else None
         if fork is not None:
             receiver, sender = fork.Pipe(duplex=False)
-            proc = self._proc = fork.Process(target=_in_child, args=(work, sender), daemon=True,
-                                             name=f"brdf_moments: {self.job_label}")
+            proc = self._proc = fork.Process(
+                target=_in_child, args=(work, sender), daemon=True, name=f"brdf_moments: {self.job_label}"
+            )
             proc.start()
             sender.close()
 
@@ -278,8 +278,10 @@ class BackgroundJob:
             frac = st["done"] / st["total"]
             context.window_manager.progress_update(int(1000 * frac))
             if context.workspace is not None:
-                text = (f"BRDF Moments: {self.job_label} {100 * frac:.0f} % ({time.monotonic() - self._started:.0f} s)"
-                        " - Esc to cancel")
+                text = (
+                    f"BRDF Moments: {self.job_label} {100 * frac:.0f} % ({time.monotonic() - self._started:.0f} s)"
+                    " - Esc to cancel"
+                )
                 # Only when it reads differently: each call redraws the status bar, which
                 # costs ~0.15 s a frame on a software-GL display and slowed jobs fourfold.
                 if text != getattr(self, "_status", None):

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core.render.live import source_table, work
 
-DEBOUNCE = 0.1             # seconds of quiet after a slider move before the work starts
+DEBOUNCE = 0.1  # seconds of quiet after a slider move before the work starts
 POLL = 0.05
 
 
@@ -35,6 +35,7 @@ def upsample(tile, d):
 
 # --- the image ---------------------------------------------------------------------------------
 
+
 def label_image(rgba, layout, labels):
     """Sphere labels drawn into the (H, W, 4) top-row-first image, above each sphere."""
     from .plot_font import draw_text, text_width
@@ -44,7 +45,7 @@ def label_image(rgba, layout, labels):
         w = text_width(text, scale)
         x = left + max((layout.diameter - w) // 2, 0)
         y = max(layout.top - 9 * scale, 1)
-        rgba[y - 1:y + 8 * scale, max(x - 1, 0):x + w + 1] = (0.0, 0.0, 0.0, 1.0)   # a dark box: legible anywhere
+        rgba[y - 1 : y + 8 * scale, max(x - 1, 0) : x + w + 1] = (0.0, 0.0, 0.0, 1.0)  # a dark box: legible anywhere
         draw_text(rgba, x, y, text, (1.0, 1.0, 1.0), scale)
     return rgba
 
@@ -90,13 +91,14 @@ def replace_sphere(mat, k, rgb, cov, label):
     d, left, top = layout.diameter, layout.lefts[k], layout.top
     if rgb.shape[0] != d:
         rgb, cov = upsample(rgb, d), upsample(cov[..., None], d)[..., 0]
-    rgba[top:top + d, left:left + d] = np.dstack([rgb * cov[..., None], cov])
+    rgba[top : top + d, left : left + d] = np.dstack([rgb * cov[..., None], cov])
     # only this sphere's label: a one-sphere layout at its place
     label_image(rgba, type(layout)(layout.width, layout.height, 1, d, (left,), top), [label])
     return write_preview_image(mat, rgba)
 
 
 # --- the work ----------------------------------------------------------------------------------
+
 
 def _job(mat):
     """What the worker needs, read on the main thread; None when there is no live preview."""
@@ -111,9 +113,15 @@ def _job(mat):
         return None
     w, h = img.size
     layout = sphere_layout(w, h, 2)
-    return dict(mat=mat.name, source=source, targets=state.slider_targets(), prof=state.profiles(),
-                fit=state.fit(), env=load_environment(resolve_environment(state.preview_env or None)),
-                d=layout.diameter)
+    return dict(
+        mat=mat.name,
+        source=source,
+        targets=state.slider_targets(),
+        prof=state.profiles(),
+        fit=state.fit(),
+        env=load_environment(resolve_environment(state.preview_env or None)),
+        d=layout.diameter,
+    )
 
 
 def _work(job, stale=lambda: False, post=lambda stage, rgb, cov: None):
@@ -139,8 +147,8 @@ def update_now(mat, refine=False):
 
 # --- in a window: debounce, a worker thread, results applied by a timer ---------------------------
 
-_GEN = {}           # material name -> generation (each slider move bumps it)
-_POSTED = []        # (material name, generation, stage, rgb, cov) from the worker
+_GEN = {}  # material name -> generation (each slider move bumps it)
+_POSTED = []  # (material name, generation, stage, rgb, cov) from the worker
 _LOCK = threading.Lock()
 
 
@@ -153,7 +161,7 @@ def slider_moved(mat):
 
     def kick():
         if _GEN.get(name) != gen:
-            return None                   # a newer move will kick
+            return None  # a newer move will kick
         m = bpy.data.materials.get(name)
         job = _job(m) if m is not None else None
         if job is None:
@@ -166,7 +174,7 @@ def slider_moved(mat):
         def run():
             try:
                 _work(job, stale=lambda: _GEN.get(name) != gen, post=post)
-            except Exception as exc:     # noqa: BLE001 - a failed live update leaves the last image
+            except Exception as exc:  # noqa: BLE001 - a failed live update leaves the last image
                 print(f"BRDF Moments: live preview: {type(exc).__name__}: {exc}")
 
         threading.Thread(target=run, name="brdf_moments: live preview", daemon=True).start()

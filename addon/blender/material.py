@@ -19,7 +19,7 @@ import json
 import bpy
 
 GROUP_NODE = "BRDF Moments edit"
-KEY = "brdfm_original_surface"     # JSON [node name, output identifier] or [] (Surface unlinked)
+KEY = "brdfm_original_surface"  # JSON [node name, output identifier] or [] (Surface unlinked)
 
 
 def group_name(mat) -> str:
@@ -38,9 +38,9 @@ def output_node(tree):
 
 def _new_group(name):
     group = bpy.data.node_groups.new(name, "ShaderNodeTree")
-    if hasattr(group, "interface"):                  # Blender 4.0 and later
+    if hasattr(group, "interface"):  # Blender 4.0 and later
         group.interface.new_socket("BSDF", in_out="OUTPUT", socket_type="NodeSocketShader")
-    else:                                            # 3.x
+    else:  # 3.x
         group.outputs.new("NodeSocketShader", "BSDF")
     return group
 
@@ -62,23 +62,31 @@ def fill_principled(group, fit):
     bsdf = group.nodes.new("ShaderNodeBsdfPrincipled")
     bsdf.name = bsdf.label = "Principled (fitted to the edited table)"
     if hasattr(bsdf, "distribution"):
-        bsdf.distribution = "GGX"       # the fit's single-scattering GGX
+        bsdf.distribution = "GGX"  # the fit's single-scattering GGX
     _set_input(bsdf, ("Base Color",), (*fit.base_color, 1.0))
     _set_input(bsdf, ("Metallic",), fit.metallic)
     _set_input(bsdf, ("Roughness",), fit.roughness)
-    if bsdf.inputs.get("Specular IOR Level") is not None:      # 4.x: F0 from the IOR, level 0.5 = as is
+    if bsdf.inputs.get("Specular IOR Level") is not None:  # 4.x: F0 from the IOR, level 0.5 = as is
         _set_input(bsdf, ("Specular IOR Level",), 0.5)
         _set_input(bsdf, ("IOR",), fit.ior)
-    else:                                                       # 3.x: Specular 0.5 = F0 0.04
+    else:  # 3.x: Specular 0.5 = F0 0.04
         _set_input(bsdf, ("Specular",), min(fit.specular_3x, 1.0))
-    for name, value in (("Coat Weight", 0.0), ("Clearcoat", 0.0), ("Sheen Weight", 0.0), ("Sheen", 0.0),
-                        ("Transmission Weight", 0.0), ("Transmission", 0.0), ("Subsurface Weight", 0.0),
-                        ("Subsurface", 0.0), ("Specular Tint", (1.0, 1.0, 1.0, 1.0))):
+    for name, value in (
+        ("Coat Weight", 0.0),
+        ("Clearcoat", 0.0),
+        ("Sheen Weight", 0.0),
+        ("Sheen", 0.0),
+        ("Transmission Weight", 0.0),
+        ("Transmission", 0.0),
+        ("Subsurface Weight", 0.0),
+        ("Subsurface", 0.0),
+        ("Specular Tint", (1.0, 1.0, 1.0, 1.0)),
+    ):
         sock = bsdf.inputs.get(name)
         if sock is None:
             continue
         if isinstance(value, tuple) and not hasattr(sock.default_value, "__len__"):
-            value = 0.0                  # 3.x's Specular Tint is a float: 0 is untinted
+            value = 0.0  # 3.x's Specular Tint is a float: 0 is untinted
         sock.default_value = value
     group.links.new(bsdf.outputs[0], out.inputs[0])
     return bsdf
@@ -153,6 +161,7 @@ def restore(mat) -> bool:
 
 # --- what Apply writes ---------------------------------------------------------------------------
 
+
 def apply_principled(mat, fit):
     label = f"BRDF Moments edit (Principled approx., error {100 * fit.error:.1f} %)"
     group = apply_group(mat, label)
@@ -161,7 +170,7 @@ def apply_principled(mat, fit):
 
 
 TEXTURE_IMAGE = "BRDFM table: {}"
-TEXTURE_FOLDER = "brdf_moments"     # next to the .blend, when the artist chooses that
+TEXTURE_FOLDER = "brdf_moments"  # next to the .blend, when the artist chooses that
 
 
 def _texture_cache():
@@ -182,8 +191,11 @@ def table_texture_file(mat, pixels, storage="PACK"):
 
     name = f"brdfm-table-{hashlib.sha256(pixels.tobytes()).hexdigest()[:16]}.exr"
     beside = storage == "BESIDE" and bool(bpy.data.filepath)
-    folder = os.path.join(os.path.dirname(bpy.path.abspath(bpy.data.filepath)), TEXTURE_FOLDER) if beside \
+    folder = (
+        os.path.join(os.path.dirname(bpy.path.abspath(bpy.data.filepath)), TEXTURE_FOLDER)
+        if beside
         else _texture_cache()
+    )
     os.makedirs(folder, exist_ok=True)
     path = os.path.join(folder, name)
     if not os.path.isfile(path):
@@ -209,8 +221,13 @@ def apply_osl(mat, pixels, res, scene=None):
     path = table_texture_file(mat, pixels, state.texture_storage)
     group = apply_group(mat, "BRDF Moments edit (OSL, the edited table)")
     prof = res.profiles
-    fill_osl(group, path, res.achieved_mu_slope if res.achieved_mu_slope is not None else state.fit_mu_slope,
-             res.achieved_sigma2 if res.achieved_sigma2 is not None else state.fit_sigma2, prof.kd)
+    fill_osl(
+        group,
+        path,
+        res.achieved_mu_slope if res.achieved_mu_slope is not None else state.fit_mu_slope,
+        res.achieved_sigma2 if res.achieved_sigma2 is not None else state.fit_sigma2,
+        prof.kd,
+    )
     return group
 
 

@@ -54,13 +54,19 @@ def _draw_region(layout, mat, width):
     point = state.requested_point()
     s2 = point[0][1] if point else state.sigma2
     lo, hi = region._range_at(min(max(s2, region.sigma2_min), region.sigma2_max))
-    col.label(text=f"Reachable: σ̃² {region.sigma2_min:.3g} to {region.sigma2_max:.3g}; "
-                   f"μ̃ {lo:+.3f} to {hi:+.3f} at this σ̃²", icon="INFO")
+    col.label(
+        text=f"Reachable: σ̃² {region.sigma2_min:.3g} to {region.sigma2_max:.3g}; μ̃ {lo:+.3f} to {hi:+.3f} at this σ̃²",
+        icon="INFO",
+    )
     if point and point[0] != point[1]:
         (mu, s2), (mu_c, s2_c) = point
-        wrapped(col, f"The sliders (μ̃ {mu:+.3f}, σ̃² {s2:.4g}) ask for more than a reciprocal table of this "
-                     f"material shows: Apply will use the nearest reachable point, μ̃ {mu_c:+.3f}, σ̃² {s2_c:.4g}",
-                width, icon="ERROR")
+        wrapped(
+            col,
+            f"The sliders (μ̃ {mu:+.3f}, σ̃² {s2:.4g}) ask for more than a reciprocal table of this "
+            f"material shows: Apply will use the nearest reachable point, μ̃ {mu_c:+.3f}, σ̃² {s2_c:.4g}",
+            width,
+            icon="ERROR",
+        )
     img = bpy.data.images.get(region_image_name(mat))
     if img is not None:
         row = col.row(align=True)
@@ -81,8 +87,9 @@ def draw_material(layout, mat, context=None):
     op.material = mat.name
     if state.source_path:
         sub = row.row(align=True)
-        sub.operator("brdf_moments.analyse", text="Analyse again" if state.analysed else "Analyse",
-                     icon="FILE_REFRESH").material = mat.name
+        sub.operator(
+            "brdf_moments.analyse", text="Analyse again" if state.analysed else "Analyse", icon="FILE_REFRESH"
+        ).material = mat.name
     layout.prop(state, "floor")
     if not state.analysed:
         layout.label(text="Load a MERL file (.binary) to analyse it", icon="INFO")
@@ -110,8 +117,9 @@ def draw_material(layout, mat, context=None):
     plot = layout.box()
     row = plot.row(align=True)
     row.label(text="Profiles", icon="IMAGE_DATA")
-    row.operator("brdf_moments.show_image", text="Open full size", icon="WINDOW").image = \
+    row.operator("brdf_moments.show_image", text="Open full size", icon="WINDOW").image = (
         img.name if img is not None else ""
+    )
     if img is not None and getattr(img, "preview", None) is not None:
         plot.template_icon(icon_value=img.preview.icon_id, scale=10.0)
 
@@ -137,7 +145,7 @@ def draw_material(layout, mat, context=None):
     osl = osl_supported()
     if osl:
         row.prop(state, "artist_shader", text="")
-    else:                       # no OSL in this Blender: the one choice there is
+    else:  # no OSL in this Blender: the one choice there is
         row.label(text="Principled (approx.)")
     if state.artist_shader in {"AUTO", "OSL"} and osl:
         row = col.row(align=True)
@@ -152,8 +160,10 @@ def draw_material(layout, mat, context=None):
         res = layout.box()
         res.label(text="Last edit", icon="CHECKMARK")
         res.label(text=f"reached μ̃ {state.achieved_mu_slope:+.4g}, σ̃² {state.achieved_sigma2:.4g}")
-        res.label(text="largest albedo " + ", ".join(f"{v:.3f}" for v in state.max_albedo),
-                  icon="ERROR" if max(state.max_albedo) > 1.0 else "NONE")
+        res.label(
+            text="largest albedo " + ", ".join(f"{v:.3f}" for v in state.max_albedo),
+            icon="ERROR" if max(state.max_albedo) > 1.0 else "NONE",
+        )
         for warning in filter(None, state.edit_warnings.split("\n")):
             wrapped(res.column(align=True), warning, width, icon="ERROR")
     from .material import is_applied
@@ -164,12 +174,21 @@ def draw_material(layout, mat, context=None):
         fit = state.principled_fit() if used == "principled" else None
         col = res.column(align=True)
         if fit is not None:
-            wrapped(col, f"'{mat.name}' renders a Principled BSDF fitted to the edited table: an approximation, "
-                         f"BRDF error {100 * fit.error:.1f} % (cosine-weighted), albedo within "
-                         f"{100 * fit.albedo_error:.1f} %", width, icon="INFO")
+            wrapped(
+                col,
+                f"'{mat.name}' renders a Principled BSDF fitted to the edited table: an approximation, "
+                f"BRDF error {100 * fit.error:.1f} % (cosine-weighted), albedo within "
+                f"{100 * fit.albedo_error:.1f} %",
+                width,
+                icon="INFO",
+            )
         elif used == "osl":
-            wrapped(col, f"'{mat.name}' renders the edited table (OSL tabulated shader, Cycles with OSL)",
-                    width, icon="INFO")
+            wrapped(
+                col,
+                f"'{mat.name}' renders the edited table (OSL tabulated shader, Cycles with OSL)",
+                width,
+                icon="INFO",
+            )
         else:
             wrapped(col, f"'{mat.name}' renders an earlier edit", width, icon="INFO")
         res.operator("brdf_moments.restore_material", icon="LOOP_BACK").material = mat.name
@@ -244,8 +263,9 @@ class NODE_PT_brdf_moments(bpy.types.Panel):
     def poll(cls, context):
         space = context.space_data
         obj = context.object
-        return (getattr(space, "tree_type", "") == "ShaderNodeTree" and obj is not None
-                and obj.active_material is not None)
+        return (
+            getattr(space, "tree_type", "") == "ShaderNodeTree" and obj is not None and obj.active_material is not None
+        )
 
     def draw(self, context):
         draw_material(self.layout, context.object.active_material, context)

@@ -55,15 +55,15 @@ class Canvas:
         xs, ys = np.concatenate(xs), np.concatenate(ys)
         if dashed:
             s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(xs), np.diff(ys)))])
-            keep = (s // 12) % 2 == 0      # 12 px dashes: legible at full size
+            keep = (s // 12) % 2 == 0  # 12 px dashes: legible at full size
             xs, ys = xs[keep], ys[keep]
         self.dot(xs, ys, colour, radius=width / 2)
 
     def rect(self, x0, y0, x1, y1, colour):
-        self.px[y0:y1 + 1, x0] = colour
-        self.px[y0:y1 + 1, x1] = colour
-        self.px[y0, x0:x1 + 1] = colour
-        self.px[y1, x0:x1 + 1] = colour
+        self.px[y0 : y1 + 1, x0] = colour
+        self.px[y0 : y1 + 1, x1] = colour
+        self.px[y0, x0 : x1 + 1] = colour
+        self.px[y1, x0 : x1 + 1] = colour
 
 
 def _range(values, include_zero=False):
@@ -108,7 +108,7 @@ def profile_plot(prof, fit=None, edited=None, width=900, height=780):
     from .plot_font import ADVANCE, draw_text, text_width
 
     c = Canvas(width, height)
-    s = max(1, int(round(width / 450)))           # text scale: 5x7 glyphs at 2x on the 900-wide plot
+    s = max(1, int(round(width / 450)))  # text scale: 5x7 glyphs at 2x on the 900-wide plot
     line_h = 9 * s
     theta = np.asarray(prof.theta_o, float)
     fine = np.linspace(0.0, math.radians(89.0), 180)
@@ -122,21 +122,40 @@ def profile_plot(prof, fit=None, edited=None, width=900, height=780):
         return 0.5 * (np.asarray(p["avg"]["sigma_tt"], float) + np.asarray(p["avg"]["sigma_pp"], float))
 
     series = [
-        ("energy", "energy α (r, g, b)", [(prof[ch]["alpha"], CHANNEL_COLOURS[ch]) for ch in "rgb"],
-         [(np.asarray(edited[ch]["alpha"], float), CHANNEL_COLOURS[ch]) for ch in "rgb"] if edited else [],
-         [(energy_spline(fine, fit, (fit.get("channels") or {}).get(ch)), CHANNEL_COLOURS[ch]) for ch in "rgb"]
-         if fit else [], False),
-        ("mean", "mean μθ (rad), fit μ~ θo", [(prof["avg"]["mu_theta"], CHANNEL_COLOURS["avg"])],
-         [(edited["avg"]["mu_theta"], CHANNEL_COLOURS["avg"])] if edited else [],
-         [(fit["mu_slope"] * fine, FIT_COLOUR)] if fit and fit.get("mu_slope") is not None else [], True),
-        ("variance", "variance (σθ² + σφ²)/2 (rad²), fit σ~²", [(var_avg(prof), CHANNEL_COLOURS["avg"])],
-         [(var_avg(edited), CHANNEL_COLOURS["avg"])] if edited else [],
-         [(np.full_like(fine, fit["sigma2"]), FIT_COLOUR)] if fit and fit.get("sigma2") is not None else [], True),
+        (
+            "energy",
+            "energy α (r, g, b)",
+            [(prof[ch]["alpha"], CHANNEL_COLOURS[ch]) for ch in "rgb"],
+            [(np.asarray(edited[ch]["alpha"], float), CHANNEL_COLOURS[ch]) for ch in "rgb"] if edited else [],
+            [(energy_spline(fine, fit, (fit.get("channels") or {}).get(ch)), CHANNEL_COLOURS[ch]) for ch in "rgb"]
+            if fit
+            else [],
+            False,
+        ),
+        (
+            "mean",
+            "mean μθ (rad), fit μ~ θo",
+            [(prof["avg"]["mu_theta"], CHANNEL_COLOURS["avg"])],
+            [(edited["avg"]["mu_theta"], CHANNEL_COLOURS["avg"])] if edited else [],
+            [(fit["mu_slope"] * fine, FIT_COLOUR)] if fit and fit.get("mu_slope") is not None else [],
+            True,
+        ),
+        (
+            "variance",
+            "variance (σθ² + σφ²)/2 (rad²), fit σ~²",
+            [(var_avg(prof), CHANNEL_COLOURS["avg"])],
+            [(var_avg(edited), CHANNEL_COLOURS["avg"])] if edited else [],
+            [(np.full_like(fine, fit["sigma2"]), FIT_COLOUR)] if fit and fit.get("sigma2") is not None else [],
+            True,
+        ),
     ]
     # legend, on top: the three styles
     lx, ly = x0, 6
-    for label, dashed, w, colour in (("measured", False, 2.0 * s, TEXT), ("edited", True, 2.0 * s, TEXT),
-                                     ("fit (thin)", False, 1.0 * s, FIT_COLOUR)):
+    for label, dashed, w, colour in (
+        ("measured", False, 2.0 * s, TEXT),
+        ("edited", True, 2.0 * s, TEXT),
+        ("fit (thin)", False, 1.0 * s, FIT_COLOUR),
+    ):
         c.clip = (0, 0, width - 1, height - 1)
         c.polyline(np.array([lx, lx + 36 * s]), np.array([ly + line_h // 2] * 2), colour, width=w, dashed=dashed)
         draw_text(c.px, lx + 40 * s, ly, label, TEXT, s)
@@ -148,7 +167,9 @@ def profile_plot(prof, fit=None, edited=None, width=900, height=780):
         charts.append((name, lo, hi))
 
         def px(t, v):
-            return x0 + (np.asarray(t) / math.radians(90.0)) * (x1 - x0), bottom - (np.asarray(v, float) - lo) / (hi - lo) * (bottom - top)
+            return x0 + (np.asarray(t) / math.radians(90.0)) * (x1 - x0), bottom - (np.asarray(v, float) - lo) / (
+                hi - lo
+            ) * (bottom - top)
 
         c.clip = (0, 0, width - 1, height - 1)
         draw_text(c.px, x0, top - line_h - 2, title, TEXT, s)
@@ -158,9 +179,9 @@ def profile_plot(prof, fit=None, edited=None, width=900, height=780):
         if lo < 0.0 < hi:
             gy = int(round(px(0.0, 0.0)[1]))
             c.px[gy, x0:x1] = GRID
-        for v in (lo, 0.5 * (lo + hi), hi):       # y ticks: bottom, middle, top
+        for v in (lo, 0.5 * (lo + hi), hi):  # y ticks: bottom, middle, top
             gy = int(round(px(0.0, v)[1]))
-            c.px[gy, x0 - 4:x0] = FRAME
+            c.px[gy, x0 - 4 : x0] = FRAME
             label = _tick(v)
             draw_text(c.px, x0 - 6 - text_width(label, s), min(max(gy - 3 * s, 0), height - 7 * s), label, TEXT, s)
         c.rect(x0, top, x1, bottom, FRAME)
@@ -171,11 +192,11 @@ def profile_plot(prof, fit=None, edited=None, width=900, height=780):
             c.polyline(*px(theta, values), colour, width=2.0 * s)
         for values, colour in edit_curves:
             c.polyline(*px(np.asarray(edited.theta_o, float), values), colour, width=2.0 * s, dashed=True)
-        if k == len(series) - 1:                  # the shared θo axis under the last chart
+        if k == len(series) - 1:  # the shared θo axis under the last chart
             c.clip = (0, 0, width - 1, height - 1)
             for deg in (0, 15, 30, 45, 60, 75, 90):
                 gx = int(round(px(math.radians(deg), lo)[0]))
-                c.px[bottom:bottom + 4, gx] = FRAME
+                c.px[bottom : bottom + 4, gx] = FRAME
                 label = f"{deg}"
                 draw_text(c.px, gx - text_width(label, s) // 2, bottom + 6, label, TEXT, s)
             axis = "view elevation θo (degrees)"
@@ -205,19 +226,25 @@ def region_plot(region, slider=None, used=None, correlation_a=None, width=600, h
     line_h = 9 * s
     mu_b, s2_b = region.boundary()
     m_fit, s_fit = region.fitted
-    pts_mu = [v for v in np.concatenate([mu_b, [m_fit, -1.0, 0.0], [p[0] for p in (slider, used) if p]])
-              if np.isfinite(v)]
+    pts_mu = [
+        v for v in np.concatenate([mu_b, [m_fit, -1.0, 0.0], [p[0] for p in (slider, used) if p]]) if np.isfinite(v)
+    ]
     x_lo, x_hi = min(pts_mu) - 0.05, max(pts_mu) + 0.05
-    s2_all = [v for v in np.concatenate([region.sigma2, [s_fit, LAMBERT_VARIANCE], [p[1] for p in (slider, used) if p]])
-              if np.isfinite(v) and v > 0]
+    s2_all = [
+        v
+        for v in np.concatenate([region.sigma2, [s_fit, LAMBERT_VARIANCE], [p[1] for p in (slider, used) if p]])
+        if np.isfinite(v) and v > 0
+    ]
     y_lo, y_hi = math.log10(min(s2_all)) - 0.05, math.log10(max(s2_all)) + 0.05
     left, right, top, bottom = 7 * ADVANCE * s + 10, 12, 3 * line_h + 8, height - 2 * line_h - 14
     x0, x1 = left, width - right - 1
 
     def px(mu, s2):
         mu, s2 = np.asarray(mu, float), np.maximum(np.asarray(s2, float), 1e-300)
-        return (x0 + (mu - x_lo) / (x_hi - x_lo) * (x1 - x0),
-                bottom - (np.log10(s2) - y_lo) / (y_hi - y_lo) * (bottom - top))
+        return (
+            x0 + (mu - x_lo) / (x_hi - x_lo) * (x1 - x0),
+            bottom - (np.log10(s2) - y_lo) / (y_hi - y_lo) * (bottom - top),
+        )
 
     # the region, row by row: each pixel row is one variance
     for row in range(top + 1, bottom):
@@ -230,20 +257,20 @@ def region_plot(region, slider=None, used=None, correlation_a=None, width=600, h
         a, b = (int(round(float(v))) for v in (px(lo, s2)[0], px(hi, s2)[0]))
         a, b = max(a, x0 + 1), min(b, x1 - 1)
         if b >= a:
-            c.px[row, a:b + 1, :3] = 0.55 * c.px[row, a:b + 1, :3] + 0.45 * np.asarray(REGION_FILL)
+            c.px[row, a : b + 1, :3] = 0.55 * c.px[row, a : b + 1, :3] + 0.45 * np.asarray(REGION_FILL)
     c.clip = (0, 0, width - 1, height - 1)
     draw_text(c.px, x0, 6, "reachable (mean slope, variance) for this material", TEXT, s)
-    for mu in (-1.5, -1.0, -0.5, 0.0):             # x ticks
+    for mu in (-1.5, -1.0, -0.5, 0.0):  # x ticks
         if x_lo <= mu <= x_hi:
             gx = int(round(float(px(mu, 1.0)[0])))
             c.px[top:bottom, gx] = GRID
-            c.px[bottom:bottom + 4, gx] = FRAME
+            c.px[bottom : bottom + 4, gx] = FRAME
             label = f"{mu:g}"
             draw_text(c.px, gx - text_width(label, s) // 2, bottom + 6, label, TEXT, s)
-    for e in range(math.ceil(y_lo), math.floor(y_hi) + 1):   # y ticks: decades
-        gy = int(round(float(px(0.0, 10.0 ** e)[1])))
+    for e in range(math.ceil(y_lo), math.floor(y_hi) + 1):  # y ticks: decades
+        gy = int(round(float(px(0.0, 10.0**e)[1])))
         c.px[gy, x0:x1] = GRID
-        label = _tick(10.0 ** e)
+        label = _tick(10.0**e)
         draw_text(c.px, x0 - 6 - text_width(label, s), min(max(gy - 3 * s, 0), height - 7 * s), label, TEXT, s)
     axis = "mean slope μ~ (x), variance σ~² (y, log)"
     draw_text(c.px, (x0 + x1 - text_width(axis, s)) // 2, bottom + 8 + line_h, axis, TEXT, s)

@@ -4,7 +4,16 @@ groups before the types that point to them, operators before the panels that dra
 import bpy
 
 from . import panel, state
-from ...operators import analyse, apply_edit, build_preview, export, load_merl, reset_sliders, restore_material, show_image
+from ...operators import (
+    analyse,
+    apply_edit,
+    build_preview,
+    export,
+    load_merl,
+    reset_sliders,
+    restore_material,
+    show_image,
+)
 
 OPERATORS = (
     load_merl.BRDFMOMENTS_OT_load_merl,

@@ -40,16 +40,14 @@ def unpack_profiles(text: str):
     try:
         raw = np.frombuffer(base64.b64decode(text.encode("ascii"), validate=True), dtype="<f4").astype(float)
     except (ValueError, UnicodeEncodeError):
-        raise ValueError("the stored analysis is damaged (not base64 float data); analyse the material again") \
-            from None
+        raise ValueError("the stored analysis is damaged (not base64 float data); analyse the material again") from None
     n = int(raw[0]) if len(raw) and np.isfinite(raw[0]) and 1 <= raw[0] <= MAX_ELEVATIONS else -1
     if n < 1 or len(raw) != 4 + n + len(CHANNELS) * len(PROFILE_KEYS) * n:
         raise ValueError("the stored analysis is damaged (wrong length); analyse the material again")
-    theta, kd = raw[1:1 + n], raw[1 + n:4 + n]
-    arr = raw[4 + n:].reshape(len(CHANNELS), len(PROFILE_KEYS), n)
+    theta, kd = raw[1 : 1 + n], raw[1 + n : 4 + n]
+    arr = raw[4 + n :].reshape(len(CHANNELS), len(PROFILE_KEYS), n)
     if not (np.isfinite(theta).all() and np.isfinite(kd).all()) or np.isinf(arr).any():
-        raise ValueError("the stored analysis is damaged (inf or NaN where numbers belong); analyse the material "
-                         "again")
+        raise ValueError("the stored analysis is damaged (inf or NaN where numbers belong); analyse the material again")
     channels = {ch: {k: arr[i, j] for j, k in enumerate(PROFILE_KEYS)} for i, ch in enumerate(CHANNELS)}
     return Profiles(theta, kd, channels)
 
@@ -59,16 +57,29 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     source_path: bpy.props.StringProperty(name="MERL file", subtype="FILE_PATH")
     analysed: bpy.props.BoolProperty(default=False)
     floor: bpy.props.EnumProperty(
-        name="Diffuse floor", default="min", update=lambda self, ctx: _floor_changed(self),
+        name="Diffuse floor",
+        default="min",
+        update=lambda self, ctx: _floor_changed(self),
         description="how kd is taken from the 45° slice; changing it asks for a new analysis",
-        items=[("min", "Minimum (paper)", "the minimum over the 45° slice (paper Sec. 2.2)"),
-               ("robust", "Robust", "the 5th percentile by area of the slice's cells within 70° of the normal: "
-                                    "one low grazing cell of a measured table cannot set it")])
+        items=[
+            ("min", "Minimum (paper)", "the minimum over the 45° slice (paper Sec. 2.2)"),
+            (
+                "robust",
+                "Robust",
+                "the 5th percentile by area of the slice's cells within 70° of the normal: "
+                "one low grazing cell of a measured table cannot set it",
+            ),
+        ],
+    )
     profiles_data: bpy.props.StringProperty(options={"HIDDEN"})
     kd: bpy.props.FloatVectorProperty(name="kd", size=3, min=0.0, soft_max=1.0, precision=4)
     kd_albedo: bpy.props.FloatVectorProperty(
-        name="Diffuse albedo", size=3, subtype="COLOR", description="π·kd, the diffuse part's albedo (read-only)",
-        get=lambda self: [min(max(math.pi * v, 0.0), 1.0) for v in self.kd])
+        name="Diffuse albedo",
+        size=3,
+        subtype="COLOR",
+        description="π·kd, the diffuse part's albedo (read-only)",
+        get=lambda self: [min(max(math.pi * v, 0.0), 1.0) for v in self.kd],
+    )
     fit_alpha_b: bpy.props.FloatProperty(name="α̃b")
     fit_theta0: bpy.props.FloatProperty(name="θ0", subtype="ANGLE")
     fit_theta1: bpy.props.FloatProperty(name="θ1", subtype="ANGLE")
@@ -83,28 +94,58 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     fit_variance_rmse: bpy.props.FloatProperty(name="variance RMSE")
     fit_notes: bpy.props.StringProperty(name="notes")
     # Sliders.
-    strength: bpy.props.FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=4.0,
-                                      update=lambda self, ctx: _slider_moved(self))
-    colour: bpy.props.FloatVectorProperty(name="Colour", size=3, subtype="COLOR", default=(1.0, 1.0, 1.0), min=0.0,
-                                          update=lambda self, ctx: _slider_moved(self))
-    grazing_boost: bpy.props.FloatProperty(name="Grazing boost", default=1.0, min=0.0, soft_max=4.0,
-                                           update=lambda self, ctx: _slider_moved(self))
+    strength: bpy.props.FloatProperty(
+        name="Strength", default=1.0, min=0.0, soft_max=4.0, update=lambda self, ctx: _slider_moved(self)
+    )
+    colour: bpy.props.FloatVectorProperty(
+        name="Colour",
+        size=3,
+        subtype="COLOR",
+        default=(1.0, 1.0, 1.0),
+        min=0.0,
+        update=lambda self, ctx: _slider_moved(self),
+    )
+    grazing_boost: bpy.props.FloatProperty(
+        name="Grazing boost", default=1.0, min=0.0, soft_max=4.0, update=lambda self, ctx: _slider_moved(self)
+    )
     # Hard ranges wide enough for every fitted value (measured mu goes below -1); the soft
     # range is what a drag covers.
-    mu_slope: bpy.props.FloatProperty(name="Mean slope μ̃", default=-0.5, min=MU_MIN, max=MU_MAX, soft_min=-1.5,
-                                      soft_max=0.0, precision=3,
-                                      update=lambda self, ctx: _slider_moved(self))
-    sigma2: bpy.props.FloatProperty(name="Variance σ̃²", default=0.1, min=SIGMA2_MIN, max=SIGMA2_MAX, precision=5,
-                                    update=lambda self, ctx: _slider_moved(self))
-    lock: bpy.props.BoolProperty(name="Follow correlation", default=False, update=lambda self, ctx: _slider_moved(self),
-                                 description="move the variance with the mean slope along the correlation quadratic")
+    mu_slope: bpy.props.FloatProperty(
+        name="Mean slope μ̃",
+        default=-0.5,
+        min=MU_MIN,
+        max=MU_MAX,
+        soft_min=-1.5,
+        soft_max=0.0,
+        precision=3,
+        update=lambda self, ctx: _slider_moved(self),
+    )
+    sigma2: bpy.props.FloatProperty(
+        name="Variance σ̃²",
+        default=0.1,
+        min=SIGMA2_MIN,
+        max=SIGMA2_MAX,
+        precision=5,
+        update=lambda self, ctx: _slider_moved(self),
+    )
+    lock: bpy.props.BoolProperty(
+        name="Follow correlation",
+        default=False,
+        update=lambda self, ctx: _slider_moved(self),
+        description="move the variance with the mean slope along the correlation quadratic",
+    )
     correlation_a: bpy.props.FloatProperty(
-        name="Correlation a", default=0.0, update=lambda self, ctx: _slider_moved(self) if self.lock else region_image(
-            self.id_data),
-        description="the quadratic's a in σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12 (fit a set with 'python -m addon fit')")
-    mode: bpy.props.EnumProperty(name="Mode", items=[("warp", "Warp", "keep the measured shape"),
-                                                     ("model", "Model", "paper Eq. 7")], default="warp",
-                                 update=lambda self, ctx: _slider_moved(self))
+        name="Correlation a",
+        default=0.0,
+        update=lambda self, ctx: _slider_moved(self) if self.lock else region_image(self.id_data),
+        description="the quadratic's a in σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12 (fit a set with 'python -m addon fit')",
+    )
+    mode: bpy.props.EnumProperty(
+        name="Mode",
+        items=[("warp", "Warp", "keep the measured shape"), ("model", "Model", "paper Eq. 7")],
+        default="warp",
+        update=lambda self, ctx: _slider_moved(self),
+    )
     # The reachable region per mode (JSON of core.edit.reach.ReachableRegion), from the analysis.
     region_data: bpy.props.StringProperty(options={"HIDDEN"})
     # The last re-synthesis (Apply).
@@ -116,31 +157,62 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     edit_warnings: bpy.props.StringProperty(name="Warnings")
     plot_caption: bpy.props.StringProperty(options={"HIDDEN"})  # the plot's y ranges, one chart a line
     preview_material: bpy.props.StringProperty(options={"HIDDEN"})  # the edited sphere's material
-    preview_path: bpy.props.EnumProperty(name="Preview path", default="AUTO", items=[
-        ("AUTO", "Auto", "the baked path (the accurate one); OSL on request"),
-        ("OSL", "OSL", "Cycles OSL shader (noisier at the same time)"),
-        ("BAKED", "Baked", "numpy radiance per texel through an Emission shader (any engine)")])
-    preview_mode: bpy.props.EnumProperty(name="Preview", default="TABULATED", items=[
-        ("TABULATED", "Tabulated", "the edited table itself (the material)"),
-        ("MODEL", "Sketch (moment model)",
-         "a statistical summary of the fits (paper Eq. 7), not the material: drags update it live")])
-    artist_shader: bpy.props.EnumProperty(name="Shader", default="AUTO", items=[
-        ("AUTO", "Auto", "OSL tabulated where the scene renders with Cycles OSL, else the Principled approximation"),
-        ("PRINCIPLED", "Principled (approx.)", "a Principled BSDF fitted to the edited table: any engine"),
-        ("OSL", "OSL tabulated", "the edited table itself, read by an OSL shader (Cycles with OSL)"),
-        ("NONE", "Leave material", "Apply does not touch the material's nodes")])
-    texture_storage: bpy.props.EnumProperty(name="Table texture", default="PACK", items=[
-        ("PACK", "Packed in .blend", "the OSL table texture is packed into the .blend"),
-        ("BESIDE", "Next to .blend", "the OSL table texture is written next to the saved .blend (//brdf_moments/)")])
-    principled_data: bpy.props.StringProperty(options={"HIDDEN"})    # the last Principled fit (JSON)
+    preview_path: bpy.props.EnumProperty(
+        name="Preview path",
+        default="AUTO",
+        items=[
+            ("AUTO", "Auto", "the baked path (the accurate one); OSL on request"),
+            ("OSL", "OSL", "Cycles OSL shader (noisier at the same time)"),
+            ("BAKED", "Baked", "numpy radiance per texel through an Emission shader (any engine)"),
+        ],
+    )
+    preview_mode: bpy.props.EnumProperty(
+        name="Preview",
+        default="TABULATED",
+        items=[
+            ("TABULATED", "Tabulated", "the edited table itself (the material)"),
+            (
+                "MODEL",
+                "Sketch (moment model)",
+                "a statistical summary of the fits (paper Eq. 7), not the material: drags update it live",
+            ),
+        ],
+    )
+    artist_shader: bpy.props.EnumProperty(
+        name="Shader",
+        default="AUTO",
+        items=[
+            (
+                "AUTO",
+                "Auto",
+                "OSL tabulated where the scene renders with Cycles OSL, else the Principled approximation",
+            ),
+            ("PRINCIPLED", "Principled (approx.)", "a Principled BSDF fitted to the edited table: any engine"),
+            ("OSL", "OSL tabulated", "the edited table itself, read by an OSL shader (Cycles with OSL)"),
+            ("NONE", "Leave material", "Apply does not touch the material's nodes"),
+        ],
+    )
+    texture_storage: bpy.props.EnumProperty(
+        name="Table texture",
+        default="PACK",
+        items=[
+            ("PACK", "Packed in .blend", "the OSL table texture is packed into the .blend"),
+            ("BESIDE", "Next to .blend", "the OSL table texture is written next to the saved .blend (//brdf_moments/)"),
+        ],
+    )
+    principled_data: bpy.props.StringProperty(options={"HIDDEN"})  # the last Principled fit (JSON)
     artist_shader_used: bpy.props.StringProperty(options={"HIDDEN"})  # "principled" / "osl" / ""
     preview_env: bpy.props.StringProperty(
-        name="Environment", default="",
-        description="a bundled HDRI name (empty: the default studio light) or an .exr/.hdr file of your own")
+        name="Environment",
+        default="",
+        description="a bundled HDRI name (empty: the default studio light) or an .exr/.hdr file of your own",
+    )
     preview_size: bpy.props.IntProperty(name="Size", default=256, min=16, max=MAX_RENDER_SIZE, subtype="PIXEL")
     scale_to_one: bpy.props.BoolProperty(
-        name="Scale albedo to 1", default=False,
-        description="scale the edited material down so that it reflects no more light than it receives")
+        name="Scale albedo to 1",
+        default=False,
+        description="scale the edited material down so that it reflects no more light than it receives",
+    )
 
     def store_analysis(self, prof, fit, keep_sliders=False):
         self.profiles_data = pack_profiles(prof)
@@ -172,8 +244,9 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         if not self.principled_data:
             return None
         d = json.loads(self.principled_data)
-        return PrincipledFit(tuple(d["base_color"]), d["metallic"], d["roughness"], d["specular"], d["error"],
-                             d["albedo_error"])
+        return PrincipledFit(
+            tuple(d["base_color"]), d["metallic"], d["roughness"], d["specular"], d["error"], d["albedo_error"]
+        )
 
     def profiles(self):
         return unpack_profiles(self.profiles_data) if self.profiles_data else None
@@ -183,15 +256,32 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def fit(self) -> dict:
         """The stored fits as the engine's dict (enough for editing and plotting)."""
-        values = [self.fit_alpha_b, self.fit_theta0, self.fit_theta1, self.fit_alpha1, self.fit_m1,
-                  self.fit_mu_slope, self.fit_sigma2, *self.fit_channels, *self.kd]
+        values = [
+            self.fit_alpha_b,
+            self.fit_theta0,
+            self.fit_theta1,
+            self.fit_alpha1,
+            self.fit_m1,
+            self.fit_mu_slope,
+            self.fit_sigma2,
+            *self.fit_channels,
+            *self.kd,
+        ]
         if not all(math.isfinite(v) for v in values):
             raise ValueError(f"{self.id_data.name}: the stored fits hold inf or NaN; analyse the material again")
-        return {"alpha_b": self.fit_alpha_b, "theta0": self.fit_theta0, "theta1": self.fit_theta1,
-                "alpha1": self.fit_alpha1, "m1": self.fit_m1, "mu_slope": self.fit_mu_slope,
-                "sigma2": self.fit_sigma2,
-                "channels": {c: {"alpha_b": self.fit_channels[i], "alpha1": self.fit_channels[3 + i],
-                                 "m1": self.fit_channels[6 + i]} for i, c in enumerate("rgb")}}
+        return {
+            "alpha_b": self.fit_alpha_b,
+            "theta0": self.fit_theta0,
+            "theta1": self.fit_theta1,
+            "alpha1": self.fit_alpha1,
+            "m1": self.fit_m1,
+            "mu_slope": self.fit_mu_slope,
+            "sigma2": self.fit_sigma2,
+            "channels": {
+                c: {"alpha_b": self.fit_channels[i], "alpha1": self.fit_channels[3 + i], "m1": self.fit_channels[6 + i]}
+                for i, c in enumerate("rgb")
+            },
+        }
 
     def model_params(self, edited=False):
         """The moment model (paper Eq. 7) of the fits, or of the fits moved by the sliders."""
@@ -202,8 +292,13 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         if not edited:
             return params
         s2 = float(correlation_curve(self.mu_slope, self.correlation_a)) if self.lock else self.sigma2
-        return params.edited(self.strength, tuple(self.colour), self.grazing_boost, self.mu_slope,
-                             min(max(s2, MIN_SIGMA2), LAMBERT_VARIANCE))
+        return params.edited(
+            self.strength,
+            tuple(self.colour),
+            self.grazing_boost,
+            self.mu_slope,
+            min(max(s2, MIN_SIGMA2), LAMBERT_VARIANCE),
+        )
 
     def reset_sliders(self):
         self.strength, self.colour, self.grazing_boost = 1.0, (1.0, 1.0, 1.0), 1.0
@@ -247,11 +342,16 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
         at_fit_mu = abs(self.mu_slope - clamp_mu(self.fit_mu_slope)) < 1e-6
         at_fit_s2 = abs(self.sigma2 - clamp_sigma2(self.fit_sigma2)) <= 1e-7 * max(self.fit_sigma2, 1e-6)
-        return EditTargets(strength=self.strength, colour=tuple(self.colour), grazing_boost=self.grazing_boost,
-                           mu_slope=None if at_fit_mu and not self.lock else self.mu_slope,
-                           sigma2=None if at_fit_s2 or self.lock else self.sigma2,
-                           mode=self.mode, lock=self.lock,
-                           correlation_a=self.correlation_a if self.lock else None)
+        return EditTargets(
+            strength=self.strength,
+            colour=tuple(self.colour),
+            grazing_boost=self.grazing_boost,
+            mu_slope=None if at_fit_mu and not self.lock else self.mu_slope,
+            sigma2=None if at_fit_s2 or self.lock else self.sigma2,
+            mode=self.mode,
+            lock=self.lock,
+            correlation_a=self.correlation_a if self.lock else None,
+        )
 
 
 def _floor_changed(state):
@@ -295,8 +395,9 @@ def plot_image(mat, prof=None, fit=None, edited=None, width=PLOT_SIZE[0], height
     prof = prof or state.profiles()
     if prof is None:
         return None
-    px, charts = profile_plot(prof, fit or state.fit(), edited if edited is not None else state.edited_profiles(),
-                              width, height)
+    px, charts = profile_plot(
+        prof, fit or state.fit(), edited if edited is not None else state.edited_profiles(), width, height
+    )
     state.plot_caption = "\n".join(f"{name}: {lo:.3g} to {hi:.3g}" for name, lo, hi in charts)
     name = f"BRDF Moments plot: {mat.name}"
     img = bpy.data.images.get(name)
@@ -331,8 +432,9 @@ def region_image(mat):
         return None
     point = state.requested_point()
     slider, used = point if point else ((state.mu_slope, state.sigma2), None)
-    px = region_plot(region, slider, used, correlation_a=state.correlation_a, width=REGION_PLOT_SIZE[0],
-                     height=REGION_PLOT_SIZE[1])
+    px = region_plot(
+        region, slider, used, correlation_a=state.correlation_a, width=REGION_PLOT_SIZE[0], height=REGION_PLOT_SIZE[1]
+    )
     name = region_image_name(mat)
     w, h = REGION_PLOT_SIZE
     img = bpy.data.images.get(name)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import numpy as np
 
-LAMBERT_VARIANCE = math.pi ** 2 / 12
+LAMBERT_VARIANCE = math.pi**2 / 12
 # The model's narrowest lobe: narrower than any MERL cell near the mirror, so a "mirror" for the
 # table. Edit targets, the preview's model, the panel and the OSL shaders all clamp to it.
 MIN_SIGMA2 = 1e-7
@@ -40,9 +40,9 @@ def energy_basis(t, theta0, theta1):
     span = np.maximum(theta1 - theta0, 1e-9)  # the fit keeps knots >= 1 deg apart; a fits file may not
     s = np.clip((t - theta0) / span, 0.0, 1.0)
     after = t > theta1
-    h00 = np.where(after, 0.0, 2 * s ** 3 - 3 * s ** 2 + 1)
-    h01 = np.where(after, 1.0, -2 * s ** 3 + 3 * s ** 2)
-    h11 = np.where(after, t - theta1, (s ** 3 - s ** 2) * span)
+    h00 = np.where(after, 0.0, 2 * s**3 - 3 * s**2 + 1)
+    h01 = np.where(after, 1.0, -2 * s**3 + 3 * s**2)
+    h11 = np.where(after, t - theta1, (s**3 - s**2) * span)
     return np.stack([h00, h01, h11], axis=-1)
 
 
@@ -77,18 +77,21 @@ def _joint_cost(theta0, theta1, series, weights):
         groups[key][2].append(w)
     total = 0.0
     for t, ys, ws in groups.values():
-        Y = np.stack(ys, axis=1)                  # (n, M)
-        w = np.asarray(ws)                        # (M,)
+        Y = np.stack(ys, axis=1)  # (n, M)
+        w = np.asarray(ws)  # (M,)
         basis = energy_basis(t, theta0, theta1)  # (..., n, 3)
         # Normal equations, batched 3x3; the tiny ridge only matters when no sample lies
         # past theta0 (then alpha1 and m1 are unconstrained and any value fits).
         gram = np.einsum("...ni,...nj->...ij", basis, basis)
         gram = gram + 1e-12 * np.trace(gram, axis1=-2, axis2=-1)[..., None, None] * np.eye(3)
-        bty = np.einsum("...ni,nm->...im", basis, Y)   # (..., 3, M)
-        coef = np.linalg.solve(gram, bty)               # (..., 3, M)
+        bty = np.einsum("...ni,nm->...im", basis, Y)  # (..., 3, M)
+        coef = np.linalg.solve(gram, bty)  # (..., 3, M)
         # |y - B c|^2 = y.y - 2 c.(B^T y) + c.(G c)
-        rss = (np.einsum("nm,nm->m", Y, Y) - 2 * np.einsum("...im,...im->...m", coef, bty)
-               + np.einsum("...im,...ij,...jm->...m", coef, gram, coef))
+        rss = (
+            np.einsum("nm,nm->m", Y, Y)
+            - 2 * np.einsum("...im,...im->...m", coef, bty)
+            + np.einsum("...im,...ij,...jm->...m", coef, gram, coef)
+        )
         total = total + np.maximum(rss, 0.0) @ w
     return total
 
@@ -230,10 +233,23 @@ def fit_material(prof, fit_range=DEFAULT_RANGE, channel="avg") -> dict:
     in_range = (t >= fit_range[0] - 1e-12) & (t <= fit_range[1] + 1e-12)
     if not np.any(np.isfinite(alpha[in_range]) & (alpha[in_range] > 0)):
         notes.append("no specular energy in the fit range: nothing to fit")
-        fit.update({"alpha_b": 0.0, "theta0": KNOT_START[0], "theta1": KNOT_START[1], "alpha1": 0.0, "m1": 0.0,
-                    "energy": {"mae": None, "rmse": None}, "mu_slope": None, "mean": {"mae": None, "rmse": None},
-                    "sigma2": None, "variance": {"mae": None, "rmse": None}, "channels": {},
-                    "outside_model": True, "notes": notes})
+        fit.update(
+            {
+                "alpha_b": 0.0,
+                "theta0": KNOT_START[0],
+                "theta1": KNOT_START[1],
+                "alpha1": 0.0,
+                "m1": 0.0,
+                "energy": {"mae": None, "rmse": None},
+                "mu_slope": None,
+                "mean": {"mae": None, "rmse": None},
+                "sigma2": None,
+                "variance": {"mae": None, "rmse": None},
+                "channels": {},
+                "outside_model": True,
+                "notes": notes,
+            }
+        )
         return fit
     e = fit_energy(t, alpha, fit_range)
     fit.update({k: e[k] for k in ("alpha_b", "theta0", "theta1", "alpha1", "m1")})
@@ -244,13 +260,16 @@ def fit_material(prof, fit_range=DEFAULT_RANGE, channel="avg") -> dict:
     v = fit_variance(t, p["sigma_tt"], p["sigma_pp"], fit_range)
     fit["sigma2"] = v["sigma2"]
     fit["variance"] = {"mae": v["mae"], "rmse": v["rmse"]}
-    fit["channels"] = fit_energy_channels(t, {ch: prof[ch]["alpha"] for ch in ("r", "g", "b")},
-                                          e["theta0"], e["theta1"], fit_range)
+    fit["channels"] = fit_energy_channels(
+        t, {ch: prof[ch]["alpha"] for ch in ("r", "g", "b")}, e["theta0"], e["theta1"], fit_range
+    )
     outside = False
     if fit["mu_slope"] is not None and fit["mu_slope"] > 0.0:
         outside = True
-        notes.append(f"mean slope {fit['mu_slope']:+.3f} > 0: the lobe sits on the view side "
-                     "(retro-reflection), outside the paper's model (slope in [-1, 0])")
+        notes.append(
+            f"mean slope {fit['mu_slope']:+.3f} > 0: the lobe sits on the view side "
+            "(retro-reflection), outside the paper's model (slope in [-1, 0])"
+        )
     elif fit["mu_slope"] is not None and fit["mu_slope"] < -1.0:
         # Microfacet lobes do this (the 1/cos factors favour grazing incidence); the fit is
         # still meaningful, only the slider range [-1, 0] will clamp it.
@@ -278,9 +297,13 @@ def fit_set(profiles_by_name: dict, fit_range=DEFAULT_RANGE, materials: dict | N
     if len(profiles_by_name) >= 2 and usable:
         series = [(profiles_by_name[n].theta_o, profiles_by_name[n]["avg"]["alpha"]) for n in usable]
         t0, t1, per = fit_energy_joint(series, fit_range)
-        out["joint"] = {"theta0": t0, "theta1": t1, "materials": dict(zip(usable, per)),
-                        "mae": float(np.mean([f["mae"] for f in per])),
-                        "rmse": float(np.sqrt(np.mean([f["rmse"] ** 2 for f in per])))}
+        out["joint"] = {
+            "theta0": t0,
+            "theta1": t1,
+            "materials": dict(zip(usable, per)),
+            "mae": float(np.mean([f["mae"] for f in per])),
+            "rmse": float(np.sqrt(np.mean([f["rmse"] ** 2 for f in per]))),
+        }
         inside = [n for n in usable if not materials[n]["outside_model"] and materials[n]["sigma2"] is not None]
         pts = [(materials[n]["mu_slope"], materials[n]["sigma2"]) for n in inside]
         corr = fit_correlation([p[0] for p in pts], [p[1] for p in pts])

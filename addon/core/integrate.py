@@ -65,9 +65,9 @@ class SliceOperator:
     offsets: np.ndarray
     cells: np.ndarray
     weights: np.ndarray  # (total, 15) float32, contiguous (a strided slice would be copied per view)
-    albedo: np.ndarray   # (total,) float32: integral of cos(theta_i) dw_i over each cell's part
+    albedo: np.ndarray  # (total,) float32: integral of cos(theta_i) dw_i over each cell's part
     centroid: np.ndarray  # (total, 2) float32: each cell part's mean (x, phi)
-    local: np.ndarray     # (total, 14) float32: moments about the centroid, exponents(4)[1:]
+    local: np.ndarray  # (total, 14) float32: moments about the centroid, exponents(4)[1:]
 
     def view(self, k):
         a, b = self.offsets[k], self.offsets[k + 1]
@@ -129,8 +129,13 @@ def _build_view(theta_o, params):
     # for the stored centre, so nothing is lost when sums are later moved to another centre.
     mass = np.bincount(inv, weights=rule.weight, minlength=len(uniq))
     mass = np.where(mass > 0, mass, 1.0)
-    cen = np.stack([np.bincount(inv, weights=rule.weight * x, minlength=len(uniq)) / mass,
-                    np.bincount(inv, weights=rule.weight * rule.phi, minlength=len(uniq)) / mass], axis=1)
+    cen = np.stack(
+        [
+            np.bincount(inv, weights=rule.weight * x, minlength=len(uniq)) / mass,
+            np.bincount(inv, weights=rule.weight * rule.phi, minlength=len(uniq)) / mass,
+        ],
+        axis=1,
+    )
     cen = cen.astype(np.float32)
     lx = x - cen[inv, 0].astype(float)
     lp = rule.phi - cen[inv, 1].astype(float)
@@ -175,8 +180,7 @@ _MEMO: dict = {}
 _SMALL: dict = {}  # single-view operators (the 45 deg diffuse slice)
 
 
-def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, progress=None,
-                 memo=True) -> SliceOperator:
+def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, progress=None, memo=True) -> SliceOperator:
     """The operator for these views, from memory, the disk cache (verified against its
     checksums once per process), or built (and cached)."""
     theta_o = np.asarray(theta_o, dtype=float)
@@ -207,9 +211,13 @@ def get_operator(theta_o, params: RuleParams = RuleParams(), cache_dir=None, pro
     return op
 
 
-_PART_LAYOUT = {"cells": (np.int32, ()), "weights": (np.float32, (n_monomials(MAX_ORDER),)),
-                "albedo": (np.float32, ()), "centroid": (np.float32, (2,)),
-                "local": (np.float32, (n_monomials(MAX_ORDER) - 1,))}
+_PART_LAYOUT = {
+    "cells": (np.int32, ()),
+    "weights": (np.float32, (n_monomials(MAX_ORDER),)),
+    "albedo": (np.float32, ()),
+    "centroid": (np.float32, (2,)),
+    "local": (np.float32, (n_monomials(MAX_ORDER) - 1,)),
+}
 _FILES = ("theta_o.npy", "offsets.npy") + tuple(f"{k}.npy" for k in _PARTS)
 
 
@@ -293,8 +301,7 @@ def sweep_operator_cache(parent, keep=()) -> list:
         return removed
     for name in names:
         path = os.path.join(parent, name)
-        if not name.startswith("operator-") or os.path.islink(path) or not os.path.isdir(path) \
-                or not is_marked(path):
+        if not name.startswith("operator-") or os.path.islink(path) or not os.path.isdir(path) or not is_marked(path):
             continue
         if not name.startswith(_OPERATOR_PREFIX) and name not in keep:
             if _discard(path):
@@ -354,8 +361,9 @@ def _build_into_cache(theta_o, params, folder, progress):
         for name, (dtype, tail) in _PART_LAYOUT.items():
             src = os.path.join(tmp, f"{name}.raw")
             with open(os.path.join(tmp, f"{name}.npy"), "wb") as out, open(src, "rb") as fh:
-                np.lib.format.write_array_header_2_0(out, {"descr": np.dtype(dtype).str, "fortran_order": False,
-                                                           "shape": (int(offsets[-1]),) + tail})
+                np.lib.format.write_array_header_2_0(
+                    out, {"descr": np.dtype(dtype).str, "fortran_order": False, "shape": (int(offsets[-1]),) + tail}
+                )
                 shutil.copyfileobj(fh, out, 1 << 24)
             os.unlink(src)
         with open(os.path.join(tmp, _SEAL), "w") as fh:
@@ -386,8 +394,9 @@ def table_sums(op: SliceOperator, values: np.ndarray, max_order: int = MAX_ORDER
     return out
 
 
-def centred_view_sums(op: SliceOperator, k: int, values: np.ndarray, centre_x, centre_phi,
-                      max_order: int = MAX_ORDER) -> np.ndarray:
+def centred_view_sums(
+    op: SliceOperator, k: int, values: np.ndarray, centre_x, centre_phi, max_order: int = MAX_ORDER
+) -> np.ndarray:
     """Sums (channels, monomials) of view ``k``, channel c about (centre_x[c], centre_phi[c]).
 
     ``values`` is (N_CELLS, channels); the sums are in float64. Each cell's moments about its
@@ -401,14 +410,14 @@ def centred_view_sums(op: SliceOperator, k: int, values: np.ndarray, centre_x, c
     index = {e: i for i, e in enumerate(ex_)}
     a, b = op.offsets[k], op.offsets[k + 1]
     cells = op.cells[a:b]
-    v = np.asarray(values[cells], dtype=float).T                                 # (C, n)
+    v = np.asarray(values[cells], dtype=float).T  # (C, n)
     lit = np.flatnonzero(v.any(axis=0))  # a narrow lobe lights few of the view's cells
     v = v[:, lit]
-    local = np.empty((len(lit), len(ex_)))                                       # about each centroid
+    local = np.empty((len(lit), len(ex_)))  # about each centroid
     local[:, 0] = op.weights[a:b, 0][lit]
-    local[:, 1:] = op.local[a:b, :len(ex_) - 1][lit]  # exponents(max_order) prefixes exponents(4)
+    local[:, 1:] = op.local[a:b, : len(ex_) - 1][lit]  # exponents(max_order) prefixes exponents(4)
     cen = np.asarray(op.centroid[a:b][lit], dtype=float)
-    ex = cen[None, :, 0] - np.atleast_1d(np.asarray(centre_x, float))[:, None]   # (C, n)
+    ex = cen[None, :, 0] - np.atleast_1d(np.asarray(centre_x, float))[:, None]  # (C, n)
     ep = cen[None, :, 1] - np.atleast_1d(np.asarray(centre_phi, float))[:, None]
     px, pp = [np.ones_like(ex)], [np.ones_like(ep)]
     for _ in range(max_order):
@@ -419,8 +428,8 @@ def centred_view_sums(op: SliceOperator, k: int, values: np.ndarray, centre_x, c
     for o in range(max_order + 1):
         loc_cols = [index[(o - j, j)] for j in range(o + 1)]
         shifts = exponents(max_order - o)
-        q = np.stack([v * px[s] * pp[t] for s, t in shifts], axis=1)             # (C, shifts, n)
-        prod = q @ local[:, loc_cols]                                            # (C, shifts, o + 1)
+        q = np.stack([v * px[s] * pp[t] for s, t in shifts], axis=1)  # (C, shifts, n)
+        prod = q @ local[:, loc_cols]  # (C, shifts, o + 1)
         for si, (s, t) in enumerate(shifts):
             for li, j in enumerate(range(o + 1)):
                 i = o - j
@@ -429,6 +438,7 @@ def centred_view_sums(op: SliceOperator, k: int, values: np.ndarray, centre_x, c
 
 
 # --- analytic slices ---------------------------------------------------------------------
+
 
 def find_peak(f, theta_o, n0=129, iters=12, hint=None):
     """Locate the maximum of a slice function on [-pi/2, pi/2]^2 by repeated zooming.
@@ -474,8 +484,8 @@ def function_sums(f, theta_o, max_order=MAX_ORDER, r0=1e-6, n_gauss=8, ratio=1.3
         t, wt, p, wp = graded_tensor_rule(ct, cp, r0, n_gauss, ratio)
         acc = None
         for i in range(0, len(t), chunk):
-            T, P = np.meshgrid(t[i:i + chunk], p, indexing="ij")
-            W = np.outer(wt[i:i + chunk], wp).ravel()
+            T, P = np.meshgrid(t[i : i + chunk], p, indexing="ij")
+            W = np.outer(wt[i : i + chunk], wp).ravel()
             v = np.asarray(f(T.ravel(), P.ravel(), to), dtype=float)
             v = v.reshape(-1, T.size)
             part = (v * W) @ monomials(T.ravel() - ct, P.ravel() - cp, max_order)
@@ -487,6 +497,7 @@ def function_sums(f, theta_o, max_order=MAX_ORDER, r0=1e-6, n_gauss=8, ratio=1.3
 
 
 # --- Monte Carlo (paper Eq. 6) -----------------------------------------------------------
+
 
 def monte_carlo_sums(evaluate, theta_o, n_samples, seed=0, max_order=MAX_ORDER, chunk=1 << 18):
     """Paper Eq. 6: uniform samples on [-pi/2, pi/2]^2, mean of pi^2 rho x^n phi^m.
@@ -506,7 +517,7 @@ def monte_carlo_sums(evaluate, theta_o, n_samples, seed=0, max_order=MAX_ORDER, 
             p = rng.uniform(-HALF_PI, HALF_PI, n)
             v = np.asarray(evaluate(t, p, to), dtype=float).reshape(-1, n)
             acc = acc + v @ monomials(t + to, p, max_order)
-        acc = acc * (np.pi ** 2 / n_samples)
+        acc = acc * (np.pi**2 / n_samples)
         if out is None:
             out = np.empty((len(theta_o),) + acc.shape)
         out[k] = acc
@@ -538,6 +549,7 @@ def grid_sums(evaluate, theta_o, n, max_order=MAX_ORDER):
 
 # --- converged reference for tables ------------------------------------------------------
 
+
 def _rect_moments(t0, t1, p0, p1, max_order):
     """Exact integrals of x^n phi^m over rectangles (x = theta - centre already applied)."""
     kx = np.arange(1, max_order + 2)
@@ -546,8 +558,7 @@ def _rect_moments(t0, t1, p0, p1, max_order):
     return np.stack([ix[:, n] * ip[:, m] for n, m in exponents(max_order)], axis=-1)
 
 
-def reference_sums(values, theta_o, max_order=MAX_ORDER, tol=1e-7, max_level=8,
-                   max_refine=400_000, per_ring=3):
+def reference_sums(values, theta_o, max_order=MAX_ORDER, tol=1e-7, max_level=8, max_refine=400_000, per_ring=3):
     """Converged integral of a nearest-cell table over one view, by adaptive subdivision.
 
     Independent of the fast rule: it works in (theta, phi), integrates panels that fall
@@ -561,7 +572,7 @@ def reference_sums(values, theta_o, max_order=MAX_ORDER, tol=1e-7, max_level=8,
     T0, P0 = np.meshgrid(e_t[:-1], e_p[:-1], indexing="ij")
     T1, P1 = np.meshgrid(e_t[1:], e_p[1:], indexing="ij")
     panels = np.stack([T0.ravel(), T1.ravel(), P0.ravel(), P1.ravel()], axis=1)
-    probe = np.linspace(0.0, 1.0, 4)        # includes the edges: a boundary cannot hide there
+    probe = np.linspace(0.0, 1.0, 4)  # includes the edges: a boundary cannot hide there
     frac = np.array([1.0, 3.0, 5.0]) / 6.0  # sub-rectangle centres for mixed panels
     total = np.zeros((values.shape[1], n_monomials(max_order)))
     scale = None
@@ -609,9 +620,14 @@ def reference_sums(values, theta_o, max_order=MAX_ORDER, tol=1e-7, max_level=8,
         r = panels[refine]
         tm = 0.5 * (r[:, 0] + r[:, 1])
         pm = 0.5 * (r[:, 2] + r[:, 3])
-        panels = np.concatenate([
-            np.stack([r[:, 0], tm, r[:, 2], pm], 1), np.stack([tm, r[:, 1], r[:, 2], pm], 1),
-            np.stack([r[:, 0], tm, pm, r[:, 3]], 1), np.stack([tm, r[:, 1], pm, r[:, 3]], 1)])
+        panels = np.concatenate(
+            [
+                np.stack([r[:, 0], tm, r[:, 2], pm], 1),
+                np.stack([tm, r[:, 1], r[:, 2], pm], 1),
+                np.stack([r[:, 0], tm, pm, r[:, 3]], 1),
+                np.stack([tm, r[:, 1], pm, r[:, 3]], 1),
+            ]
+        )
     return total
 
 

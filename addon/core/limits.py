@@ -8,36 +8,36 @@ user needs and well below what would exhaust this machine (2 cores, a few GB).
 from __future__ import annotations
 
 # --- analysis -------------------------------------------------------------------------------
-MAX_ELEVATIONS = 360         # view elevations (0.25 deg steps); the slice operator grows ~4 MB per view
-MAX_ORDER = 4                # highest moment order (the paper's)
-MAX_INPUTS = 10_000          # files given to fit / analyze
-MAX_JOBS = 64                # analyze worker processes
+MAX_ELEVATIONS = 360  # view elevations (0.25 deg steps); the slice operator grows ~4 MB per view
+MAX_ORDER = 4  # highest moment order (the paper's)
+MAX_INPUTS = 10_000  # files given to fit / analyze
+MAX_JOBS = 64  # analyze worker processes
 
 # --- preview and render ---------------------------------------------------------------------
-MAX_RENDER_SIZE = 4096       # render --size, Build Preview sphere size, in pixels
-MAX_SAMPLES = 4096           # Cycles samples per pixel
-MAX_LOBE_SAMPLES = 1024      # OSL directions per shading point
-MAX_BAKE_SAMPLES = 4096      # baked-path directions per texel
+MAX_RENDER_SIZE = 4096  # render --size, Build Preview sphere size, in pixels
+MAX_SAMPLES = 4096  # Cycles samples per pixel
+MAX_LOBE_SAMPLES = 1024  # OSL directions per shading point
+MAX_BAKE_SAMPLES = 4096  # baked-path directions per texel
 
 # --- input files ----------------------------------------------------------------------------
-MAX_IMAGE_SIDE = 16384               # width or height of an environment map
-MAX_IMAGE_PIXELS = 8192 * 4096       # 33.5 M pixels: about 540 MB as Blender's float RGBA
-MAX_IMAGE_BYTES = 1 << 30            # an .exr/.hdr file on disk
-MAX_PROFILES_JSON_BYTES = 64 << 20   # a profiles JSON given to fit
-MAX_JSON_DEPTH = 32                  # nesting of any JSON read
-MAX_JSON_LIST = MAX_ELEVATIONS       # values per profile list
-MAX_NBRDF_BYTES = 64 << 20           # a Neural-BRDF .npz
-MAX_NBRDF_MEMBERS = 6 * 2000         # arrays in one .npz: six per network, up to 2000 networks
-MAX_CACHE_ENTRY_BYTES = 1 << 30      # one cache file (the largest operator part is ~200 MB)
+MAX_IMAGE_SIDE = 16384  # width or height of an environment map
+MAX_IMAGE_PIXELS = 8192 * 4096  # 33.5 M pixels: about 540 MB as Blender's float RGBA
+MAX_IMAGE_BYTES = 1 << 30  # an .exr/.hdr file on disk
+MAX_PROFILES_JSON_BYTES = 64 << 20  # a profiles JSON given to fit
+MAX_JSON_DEPTH = 32  # nesting of any JSON read
+MAX_JSON_LIST = MAX_ELEVATIONS  # values per profile list
+MAX_NBRDF_BYTES = 64 << 20  # a Neural-BRDF .npz
+MAX_NBRDF_MEMBERS = 6 * 2000  # arrays in one .npz: six per network, up to 2000 networks
+MAX_CACHE_ENTRY_BYTES = 1 << 30  # one cache file (the largest operator part is ~200 MB)
 
 # --- caches on disk (least recently used goes first) ------------------------------------------
-OPERATOR_CACHE_MAX_ENTRIES = 8       # slice operators (~370 MB each at 90 views, 4 MB for one view)
+OPERATOR_CACHE_MAX_ENTRIES = 8  # slice operators (~370 MB each at 90 views, 4 MB for one view)
 OPERATOR_CACHE_MAX_BYTES = 3 << 30
-BAKE_CACHE_MAX_ENTRIES = 256         # baked spheres (~1 MB each at 256 px)
+BAKE_CACHE_MAX_ENTRIES = 256  # baked spheres (~1 MB each at 256 px)
 BAKE_CACHE_MAX_BYTES = 512 << 20
-TABLE_TEXTURE_MAX_ENTRIES = 16       # OSL table textures (~17 MB each)
+TABLE_TEXTURE_MAX_ENTRIES = 16  # OSL table textures (~17 MB each)
 TABLE_TEXTURE_MAX_BYTES = 400 << 20
-EDITS_CACHE_MAX_ENTRIES = 16         # re-synthesized tables from Apply (35 MB each)
+EDITS_CACHE_MAX_ENTRIES = 16  # re-synthesized tables from Apply (35 MB each)
 EDITS_CACHE_MAX_BYTES = 600 << 20
 
 

@@ -109,8 +109,11 @@ def table_from_stored(stored: np.ndarray, path=None) -> MerlTable:
     huge = rho > MAX_REFLECTANCE
     if huge.any():
         bad = np.argwhere(huge)[0]
-        raise MerlError(path, f"{int(huge.sum())} value(s) above {MAX_REFLECTANCE:g}, beyond any reflectance "
-                              f"(first {rho[tuple(bad)]:.3g} at channel {bad[0]}, cell {bad[1]})")
+        raise MerlError(
+            path,
+            f"{int(huge.sum())} value(s) above {MAX_REFLECTANCE:g}, beyond any reflectance "
+            f"(first {rho[tuple(bad)]:.3g} at channel {bad[0]}, cell {bad[1]})",
+        )
     return MerlTable(rho, valid, path)
 
 
@@ -138,6 +141,7 @@ def write_merl(table: MerlTable, path, *, source=None) -> None:
 
 
 # --- lookup -----------------------------------------------------------------------------
+
 
 def cell_indices(theta_h, theta_d, phi_d):
     """Nearest cell (flat index) for Rusinkiewicz angles, as MERL's reference reader."""
@@ -235,8 +239,9 @@ def trilinear_corners(theta_h, theta_d, phi_d):
 
     Along theta_h and theta_d the corners clamp at the table's edges; phi_d is periodic with
     period pi through the reciprocity fold."""
-    fth, ftd, fpd = _fractional_indices(np.asarray(theta_h, float).ravel(), np.asarray(theta_d, float).ravel(),
-                                        np.asarray(phi_d, float).ravel())
+    fth, ftd, fpd = _fractional_indices(
+        np.asarray(theta_h, float).ravel(), np.asarray(theta_d, float).ravel(), np.asarray(phi_d, float).ravel()
+    )
     axes = []
     for f, n, periodic in ((fth, RES_TH, False), (ftd, RES_TD, False), (fpd, RES_PD, True)):
         i0 = np.floor(f)

@@ -18,14 +18,27 @@ from math import comb
 
 import numpy as np
 
-PROFILE_KEYS = ("alpha", "mu_theta", "mu_phi", "sigma_tt", "sigma_tp", "sigma_pp",
-                "skew_30", "skew_21", "skew_12", "skew_03",
-                "kurt_40", "kurt_31", "kurt_22", "kurt_13", "kurt_04")
+PROFILE_KEYS = (
+    "alpha",
+    "mu_theta",
+    "mu_phi",
+    "sigma_tt",
+    "sigma_tp",
+    "sigma_pp",
+    "skew_30",
+    "skew_21",
+    "skew_12",
+    "skew_03",
+    "kurt_40",
+    "kurt_31",
+    "kurt_22",
+    "kurt_13",
+    "kurt_04",
+)
 CHANNELS = ("r", "g", "b", "avg")
 
 # Keys needed for each maximum order; lower orders are always present.
-KEYS_BY_ORDER = {0: PROFILE_KEYS[:1], 1: PROFILE_KEYS[:3], 2: PROFILE_KEYS[:6], 3: PROFILE_KEYS[:10],
-                 4: PROFILE_KEYS}
+KEYS_BY_ORDER = {0: PROFILE_KEYS[:1], 1: PROFILE_KEYS[:3], 2: PROFILE_KEYS[:6], 3: PROFILE_KEYS[:10], 4: PROFILE_KEYS}
 
 
 def exponents(max_order: int):
@@ -72,6 +85,7 @@ def shift_amplification(sums, max_order: int = 4, tiny: float = 1e-300):
     raw = sums / np.where(ok, alpha, 1.0)[..., None]
     worst = np.ones(sums.shape[:-1])
     for axis in ((1, 0), (0, 1)):
+
         def raw_moment(i):
             return raw[..., idx[(axis[0] * i, axis[1] * i)]]
 

@@ -93,9 +93,17 @@ def _network(path, name, arrays: dict) -> Network:
         if v.dtype.kind not in "fiu":
             raise WeightsError(path, f"material {name!r}: {k} is not numeric ({v.dtype})")
     w1, b1, w2, b2, w3, b3 = (a[k] for k in LAYER_KEYS)
-    shapes_ok = (w1.ndim == 2 and w1.shape[0] == 6 and b1.shape == (w1.shape[1],)
-                 and w2.ndim == 2 and w2.shape[0] == w1.shape[1] and b2.shape == (w2.shape[1],)
-                 and w3.ndim == 2 and w3.shape == (w2.shape[1], 3) and b3.shape == (3,))
+    shapes_ok = (
+        w1.ndim == 2
+        and w1.shape[0] == 6
+        and b1.shape == (w1.shape[1],)
+        and w2.ndim == 2
+        and w2.shape[0] == w1.shape[1]
+        and b2.shape == (w2.shape[1],)
+        and w3.ndim == 2
+        and w3.shape == (w2.shape[1], 3)
+        and b3.shape == (3,)
+    )
     if not shapes_ok:
         got = ", ".join(f"{k} {a[k].shape}" for k in LAYER_KEYS)
         raise WeightsError(path, f"material {name!r}: not a 6-input, 3-output Neural-BRDF network ({got})")
@@ -106,6 +114,7 @@ def _network(path, name, arrays: dict) -> Network:
 
 
 # --- reading -----------------------------------------------------------------------------
+
 
 def _npz_groups(path):
     from .limits import MAX_NBRDF_BYTES, MAX_NBRDF_MEMBERS
@@ -165,8 +174,11 @@ def _h5_groups(path):
     try:
         import h5py
     except ImportError:
-        raise WeightsError(path, "reading Keras .h5 files needs the h5py package (not installed); "
-                                 "convert with the Neural-BRDF project's h5_to_npy.py, or use an .npz") from None
+        raise WeightsError(
+            path,
+            "reading Keras .h5 files needs the h5py package (not installed); "
+            "convert with the Neural-BRDF project's h5_to_npy.py, or use an .npz",
+        ) from None
     from .limits import MAX_NBRDF_BYTES
     from .safeio import UnsafePath, open_input
 
@@ -177,9 +189,11 @@ def _h5_groups(path):
     datasets = {}
     try:
         with h5py.File(path, "r") as f:
+
             def visit(name, obj):
                 if isinstance(obj, h5py.Dataset):
                     datasets[name] = np.asarray(obj[()])
+
             f.visititems(visit)
     except (OSError, ValueError) as exc:
         raise WeightsError(path, f"not a readable HDF5 file ({_why(exc)})") from None
@@ -210,8 +224,14 @@ def dense_layers(datasets: dict, path=None) -> dict:
     # numbers per session (dense_4, dense_5, ...).
     import itertools
 
-    chains = [p for p in itertools.permutations(layers) if p[0][0].shape[0] == 6 and p[2][0].shape[1] == 3
-              and p[0][0].shape[1] == p[1][0].shape[0] and p[1][0].shape[1] == p[2][0].shape[0]]
+    chains = [
+        p
+        for p in itertools.permutations(layers)
+        if p[0][0].shape[0] == 6
+        and p[2][0].shape[1] == 3
+        and p[0][0].shape[1] == p[1][0].shape[0]
+        and p[1][0].shape[1] == p[2][0].shape[0]
+    ]
     if not chains:
         raise WeightsError(path, "the dense layers do not chain 6 -> ... -> 3")
     arrays = {}
@@ -236,8 +256,11 @@ def _groups(path):
     groups = {k: v for k, v in groups.items()}
     if not groups:
         if os.path.isdir(path):
-            raise WeightsError(path, "a folder with no network weights in it (Neural-BRDF NAME_fc1.npy ...); "
-                                     "choose a MERL .binary file or a weights file")
+            raise WeightsError(
+                path,
+                "a folder with no network weights in it (Neural-BRDF NAME_fc1.npy ...); "
+                "choose a MERL .binary file or a weights file",
+            )
         raise WeightsError(path, f"no network weights found; expected a {kind}")
     if "" in groups:
         # One unnamed material: name it after the file or folder.
@@ -262,8 +285,9 @@ def load_network(path, name: str | None = None) -> Network:
     groups = _groups(path)
     if name is None:
         if len(groups) != 1:
-            raise WeightsError(path, f"holds {len(groups)} materials; choose one as FILE:NAME, e.g. "
-                                     f"{_names(sorted(groups)[:4])}, ...")
+            raise WeightsError(
+                path, f"holds {len(groups)} materials; choose one as FILE:NAME, e.g. {_names(sorted(groups)[:4])}, ..."
+            )
         name = next(iter(groups))
     if name not in groups:
         import difflib
@@ -274,6 +298,7 @@ def load_network(path, name: str | None = None) -> Network:
 
 
 # --- evaluation --------------------------------------------------------------------------
+
 
 def _axis_centres():
     th = ((np.arange(RES_TH) + 0.5) / RES_TH) ** 2 * HALF_PI
@@ -299,7 +324,7 @@ def forward(net: Network, x: np.ndarray) -> np.ndarray:
     x = np.asarray(x, dtype=np.float32)
     out = np.empty((x.shape[0], 3), dtype=np.float32)
     for s in range(0, x.shape[0], CHUNK):
-        h = x[s:s + CHUNK] @ net.W1
+        h = x[s : s + CHUNK] @ net.W1
         h += net.b1
         np.maximum(h, 0.0, out=h)
         h = h @ net.W2
@@ -307,7 +332,7 @@ def forward(net: Network, x: np.ndarray) -> np.ndarray:
         np.maximum(h, 0.0, out=h)
         y = h @ net.W3
         y += net.b3
-        out[s:s + CHUNK] = y
+        out[s : s + CHUNK] = y
     # exp in float64: a large log-value must give a large finite number, not float32 inf.
     with np.errstate(over="ignore"):
         val = np.expm1(out.astype(np.float64))
@@ -329,7 +354,7 @@ def decode(net: Network, path=None) -> MerlTable:
     # Build the inputs one chunk of valid cells at a time: memory stays bounded.
     step = CHUNK * 4
     for s in range(0, idx.size, step):
-        cells = idx[s:s + step]
+        cells = idx[s : s + step]
         ith, rest = np.divmod(cells, plane)
         x = np.empty((cells.size, 6), dtype=np.float32)
         x[:, 0] = sth[ith]
@@ -342,8 +367,11 @@ def decode(net: Network, path=None) -> MerlTable:
     src = path if path is not None else net.source
     bad = ~np.isfinite(rho) | (rho > MAX_REFLECTANCE)
     if bad.any():
-        raise WeightsError(src, f"material {net.name!r}: the network gives {int(bad.sum())} value(s) "
-                                f"beyond any reflectance (> {MAX_REFLECTANCE:g})")
+        raise WeightsError(
+            src,
+            f"material {net.name!r}: the network gives {int(bad.sum())} value(s) "
+            f"beyond any reflectance (> {MAX_REFLECTANCE:g})",
+        )
     valid = np.broadcast_to(ok, (3, N_CELLS)).copy()
     return MerlTable(rho, valid, os.fspath(src) if src is not None else None, label=net.name)
 
@@ -374,8 +402,10 @@ def read_table(spec, material: str | None = None) -> MerlTable:
     if is_weights_source(path):
         return decode(load_network(path, name))
     if name is not None:
-        raise MerlError(path, f"a material name ({name!r}) was given, but this is not a weights file "
-                              f"(.npz, .h5 or a folder of .npy)")
+        raise MerlError(
+            path,
+            f"a material name ({name!r}) was given, but this is not a weights file (.npz, .h5 or a folder of .npy)",
+        )
     return read_merl(path)
 
 

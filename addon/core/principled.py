@@ -27,19 +27,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-DIELECTRIC_MAX = 0.08   # Blender 3.x's "Specular" = 1 is F0 0.08; Blender 4 reaches it through the IOR
+DIELECTRIC_MAX = 0.08  # Blender 3.x's "Specular" = 1 is F0 0.08; Blender 4 reaches it through the IOR
 VIEWS_DEG = tuple(range(0, 81, 5))
 N_PHI_H = 24
 
 
 @dataclass(frozen=True)
 class PrincipledFit:
-    base_color: tuple       # linear RGB
+    base_color: tuple  # linear RGB
     metallic: float
-    roughness: float        # Blender's roughness (GGX alpha = roughness²)
-    specular: float         # dielectric F0 at normal incidence, 0 to DIELECTRIC_MAX
-    error: float            # relative L2 error of the fitted BRDF (cosine-weighted, all channels)
-    albedo_error: float     # largest relative error of the directional albedo over the views
+    roughness: float  # Blender's roughness (GGX alpha = roughness²)
+    specular: float  # dielectric F0 at normal incidence, 0 to DIELECTRIC_MAX
+    error: float  # relative L2 error of the fitted BRDF (cosine-weighted, all channels)
+    albedo_error: float  # largest relative error of the directional albedo over the views
 
     @property
     def ior(self) -> float:
@@ -53,8 +53,14 @@ class PrincipledFit:
         return self.specular / DIELECTRIC_MAX
 
     def as_dict(self) -> dict:
-        return {"base_color": list(self.base_color), "metallic": self.metallic, "roughness": self.roughness,
-                "specular": self.specular, "error": self.error, "albedo_error": self.albedo_error}
+        return {
+            "base_color": list(self.base_color),
+            "metallic": self.metallic,
+            "roughness": self.roughness,
+            "specular": self.specular,
+            "error": self.error,
+            "albedo_error": self.albedo_error,
+        }
 
 
 def _lobe_terms(alpha, wi, wo):
@@ -76,7 +82,7 @@ def _lobe_terms(alpha, wi, wo):
 
 def principled_brdf(fit, wi, wo):
     """The model above for a PrincipledFit: (3, ...) for unit vectors (..., 3)."""
-    lobe, sch = _lobe_terms(fit.roughness ** 2, np.asarray(wi, float), np.asarray(wo, float))
+    lobe, sch = _lobe_terms(fit.roughness**2, np.asarray(wi, float), np.asarray(wo, float))
     base = np.asarray(fit.base_color, float).reshape((3,) + (1,) * lobe.ndim)
     f0 = (1.0 - fit.metallic) * fit.specular + fit.metallic * base
     return (1.0 - fit.metallic) * base / np.pi + (f0 + (1.0 - f0) * sch) * lobe
@@ -124,7 +130,7 @@ def _box_qp(A, b, ub, iters=8):
             u_f[free] = np.linalg.solve(A[np.ix_(free, free)], rhs)
         out = free & ((u_f < 0.0) | (u_f > ub))
         u = np.clip(u_f, 0.0, ub)
-        g = A @ u - b                           # half the gradient
+        g = A @ u - b  # half the gradient
         release = fixed & (((u <= 0.0) & (g < 0.0)) | ((u >= ub) & (g > 0.0)))
         if not out.any() and not release.any():
             return u
@@ -145,7 +151,7 @@ def _map_to_principled(G, r, yy, metal_steps=41):
         Ms = []
         for c in range(3):
             M = np.zeros((2, 4))
-            M[0, c] = 1.0 - m                         # d_c (the 1/pi sits in the feature)
+            M[0, c] = 1.0 - m  # d_c (the 1/pi sits in the feature)
             M[1, c], M[1, 3] = m, 1.0 - m
             Ms.append(M)
             A += M.T @ G @ M
@@ -173,14 +179,14 @@ def fit_principled(table) -> PrincipledFit:
     ok = valid.all(axis=0)
     wi, wo, w, rho = wi[ok], wo[ok], w[ok], rho[:, ok]
     view = np.repeat(np.arange(len(sizes)), sizes)[ok]
-    norm2 = float(np.sum(w[None, :] * rho ** 2)) or 1.0
+    norm2 = float(np.sum(w[None, :] * rho**2)) or 1.0
 
     def solve(rough, metal_steps=11):
         lobe, sch = _lobe_terms(rough * rough, wi, wo)
         feats = np.stack([np.full_like(lobe, 1.0 / np.pi), lobe * (1.0 - sch)])
         y = rho - lobe * sch
         G = (feats * w) @ feats.T
-        r = (y * w) @ feats.T                      # (3, 2)
+        r = (y * w) @ feats.T  # (3, 2)
         yy = np.sum(w * y * y, axis=1)
         return _map_to_principled(G, r, yy, metal_steps)
 
@@ -188,8 +194,7 @@ def fit_principled(table) -> PrincipledFit:
     costs = [solve(g)[0] for g in grid]
     k = int(np.argmin(costs))
     lo_r, hi_r = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-    res = minimize_scalar(lambda g: solve(g)[0], bounds=(lo_r, hi_r), method="bounded",
-                          options={"xatol": 1e-4})
+    res = minimize_scalar(lambda g: solve(g)[0], bounds=(lo_r, hi_r), method="bounded", options={"xatol": 1e-4})
     rough = float(res.x) if res.fun <= costs[k] else float(grid[k])
     cost, metal, spec, base = solve(rough, 51)
     fit = PrincipledFit(base, metal, rough, spec, 0.0, 0.0)

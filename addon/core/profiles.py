@@ -63,8 +63,7 @@ class Profiles:
             for i, x in enumerate(v):
                 if x is None and not finite:
                     out[i] = np.nan
-                elif isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) \
-                        and abs(x) < 1e300:
+                elif isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and abs(x) < 1e300:
                     out[i] = float(x)
                 else:
                     raise ValueError(f"'{where}[{i}]' is not a finite number: {str(x)[:40]!r}")
@@ -169,9 +168,19 @@ def specular_values(table: MerlTable, kd, split=True, dtype=np.float64, with_ave
     return out
 
 
-def compute_profiles(table: MerlTable, theta_o=None, *, max_order: int = MAX_ORDER, split: bool = True,
-                     kd=None, interp: str = "nearest", cache_dir=None, progress=None,
-                     params: RuleParams = RuleParams(), floor: str = "min") -> Profiles:
+def compute_profiles(
+    table: MerlTable,
+    theta_o=None,
+    *,
+    max_order: int = MAX_ORDER,
+    split: bool = True,
+    kd=None,
+    interp: str = "nearest",
+    cache_dir=None,
+    progress=None,
+    params: RuleParams = RuleParams(),
+    floor: str = "min",
+) -> Profiles:
     """All moment profiles of a table for the views ``theta_o`` (radians; default 0..89 deg).
 
     ``kd`` overrides the automatic diffuse floor; ``split=False`` analyses the whole BRDF.
@@ -184,7 +193,11 @@ def compute_profiles(table: MerlTable, theta_o=None, *, max_order: int = MAX_ORD
         raise ValueError(f"unknown diffuse floor {floor!r} ({' or '.join(FLOORS)})")
     theta_o = default_views() if theta_o is None else np.asarray(theta_o, dtype=float)
     if split:
-        kd = diffuse_floor(table, cache_dir, floor) if kd is None else np.broadcast_to(np.asarray(kd, float), (3,)).copy()
+        kd = (
+            diffuse_floor(table, cache_dir, floor)
+            if kd is None
+            else np.broadcast_to(np.asarray(kd, float), (3,)).copy()
+        )
     else:
         kd = np.zeros(3)
     if interp not in ("nearest", "trilinear"):
@@ -201,12 +214,13 @@ def compute_profiles(table: MerlTable, theta_o=None, *, max_order: int = MAX_ORD
         # and sigma^2 by ~1e-6 relative (measured in BENCHMARKS.md), far inside the targets.
         op = get_operator(theta_o, params, cache_dir=cache_dir, progress=progress)
         peak = table.rho.max(axis=1)
-        if np.any((peak > 0) & ((peak < 2.0 ** -16) | (peak > 2.0 ** 16))):
+        if np.any((peak > 0) & ((peak < 2.0**-16) | (peak > 2.0**16))):
             values, exponent = _normalized_values(table, kd, split)
             sums = table_sums(op, values, max_order)
         else:
-            same_mask = (np.array_equal(table.valid[0], table.valid[1])
-                         and np.array_equal(table.valid[0], table.valid[2]))
+            same_mask = np.array_equal(table.valid[0], table.valid[1]) and np.array_equal(
+                table.valid[0], table.valid[2]
+            )
             values = specular_values(table, kd, split, np.float32, with_average=not same_mask)
             sums = table_sums(op, values, max_order)
             if same_mask:
@@ -291,8 +305,12 @@ def _trilinear_sums(table, kd, theta_o, max_order, params, progress):
 
 
 def _stats(sums, centre, max_order, centre_phi=0.0):
-    st = profiles_from_sums(sums, np.asarray(centre)[:, None], max_order, centre_phi=np.asarray(centre_phi)[..., None]
-                            if np.ndim(centre_phi) else centre_phi)
+    st = profiles_from_sums(
+        sums,
+        np.asarray(centre)[:, None],
+        max_order,
+        centre_phi=np.asarray(centre_phi)[..., None] if np.ndim(centre_phi) else centre_phi,
+    )
     return {k: v for k, v in st.items()}
 
 

@@ -128,8 +128,7 @@ def _ray_nodes(theta_o, phi_h, dphi, u_edges, xg, wg, exact):
     dz = sh * x1 + ch * z1
     theta_d = np.arccos(np.clip(dz, -1.0, 1.0))
     phi_d = np.arctan2(y1, dx)
-    return SliceRule(theta.ravel(), phi.ravel(), weight.ravel(), theta_h.ravel(), theta_d.ravel(),
-                     phi_d.ravel())
+    return SliceRule(theta.ravel(), phi.ravel(), weight.ravel(), theta_h.ravel(), theta_d.ravel(), phi_d.ravel())
 
 
 @lru_cache(maxsize=None)
@@ -185,17 +184,17 @@ def _fade(u, ua, ub):
 class RuleParams:
     """Resolution of the hybrid slice rule (defaults chosen by the benchmark)."""
 
-    n_phi: int = 1440         # half-vector rays
-    n_gauss: int = 3          # Gauss nodes per theta_h cell on a ray
-    fade_from: float = 60.0   # |phi| (deg) where the half-vector part starts to fade out
-    fade_to: float = 75.0     # ... and where it is gone: the poles (|phi| = 90) never see it
-    n_panels: int = 192       # tensor panels along theta in the pole strips
-    n_panels_phi: int = 64    # ... and along phi, per strip
+    n_phi: int = 1440  # half-vector rays
+    n_gauss: int = 3  # Gauss nodes per theta_h cell on a ray
+    fade_from: float = 60.0  # |phi| (deg) where the half-vector part starts to fade out
+    fade_to: float = 75.0  # ... and where it is gone: the poles (|phi| = 90) never see it
+    n_panels: int = 192  # tensor panels along theta in the pole strips
+    n_panels_phi: int = 64  # ... and along phi, per strip
     n_gauss_far: int = 4
     # Split every line of both rules where it crosses a cell edge (the table is then constant
     # on each piece). False gives the point-sampled rule of operator version 7, for comparison.
     exact: bool = True
-    n_probe: int = 2048       # cell probes along each strip line (the bisection starts there)
+    n_probe: int = 2048  # cell probes along each strip line (the bisection starts there)
     # At views from 70 and from 80 deg: these multiples of n_phi and of n_panels_phi (the
     # lines across the slice, whose quadrature is the error left; see slice_rule).
     grazing_rays: tuple = (2, 4)
@@ -205,8 +204,19 @@ class RuleParams:
     interp: str = "nearest"
 
     def key(self):
-        key = (self.n_phi, self.n_gauss, self.fade_from, self.fade_to, self.n_panels, self.n_panels_phi,
-               self.n_gauss_far, self.exact, self.n_probe, self.grazing_rays, self.grazing_strip)
+        key = (
+            self.n_phi,
+            self.n_gauss,
+            self.fade_from,
+            self.fade_to,
+            self.n_panels,
+            self.n_panels_phi,
+            self.n_gauss_far,
+            self.exact,
+            self.n_probe,
+            self.grazing_rays,
+            self.grazing_strip,
+        )
         return key if self.interp == "nearest" else key + (self.interp,)  # nearest keys as before
 
 
@@ -237,8 +247,8 @@ def _line_breaks(cells, lines, lo, hi, n_probe, iters=18):
     ids = np.empty((len(lines), n_probe + 1), dtype=np.int64)
     step = max(1, (1 << 17) // (n_probe + 1))  # the cell lookup's temporaries scale with its input
     for i in range(0, len(lines), step):
-        sub = lines[i:i + step]
-        ids[i:i + step] = cells(np.tile(t, len(sub)), np.repeat(sub, n_probe + 1)).reshape(len(sub), -1)
+        sub = lines[i : i + step]
+        ids[i : i + step] = cells(np.tile(t, len(sub)), np.repeat(sub, n_probe + 1)).reshape(len(sub), -1)
     line, j = np.nonzero(ids[:, 1:] != ids[:, :-1])
     left, right, id_left, phi = t[j], t[j + 1], ids[line, j], lines[line]
     for _ in range(iters):
@@ -308,17 +318,21 @@ def slice_rule_parts(theta_o: float, params: RuleParams = RuleParams(), chunk: i
         # the mirror does: the table jumps across slivers of phi_h narrower than the ray
         # spacing, which the midpoint rule resolves at first order. More rays, there only.
         g = int(theta_o >= np.radians(80.0) - 1e-9)
-        params = replace(params, n_phi=params.n_phi * params.grazing_rays[g],
-                         n_panels_phi=params.n_panels_phi * params.grazing_strip[g])
+        params = replace(
+            params,
+            n_phi=params.n_phi * params.grazing_rays[g],
+            n_panels_phi=params.n_panels_phi * params.grazing_strip[g],
+        )
     u_edges = np.linspace(0.0, 1.0, RES_TH + 1)
     xg, wg = gauss_legendre(params.n_gauss)
     phi_h = (np.arange(params.n_phi) + 0.5) * (2.0 * np.pi / params.n_phi)
     for i in range(0, params.n_phi, chunk):
-        near = _ray_nodes(theta_o, phi_h[i:i + chunk], 2.0 * np.pi / params.n_phi, u_edges, xg, wg, params.exact)
+        near = _ray_nodes(theta_o, phi_h[i : i + chunk], 2.0 * np.pi / params.n_phi, u_edges, xg, wg, params.exact)
         w_near = near.weight * _fade(np.abs(near.phi), a, b)
         keep = w_near > 0.0
-        yield SliceRule(near.theta[keep], near.phi[keep], w_near[keep], near.theta_h[keep], near.theta_d[keep],
-                        near.phi_d[keep])
+        yield SliceRule(
+            near.theta[keep], near.phi[keep], w_near[keep], near.theta_h[keep], near.theta_d[keep], near.phi_d[keep]
+        )
         del near
 
     T, P, w_far = _strip_rule(theta_o, params, a, b)

@@ -45,9 +45,14 @@ class UnsafePath(ValueError):
 
 
 def describe_mode(mode) -> str:
-    for test, what in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISSOCK, "a socket"), (stat.S_ISREG, "a regular file")):
+    for test, what in (
+        (stat.S_ISDIR, "a directory"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISREG, "a regular file"),
+    ):
         if test(mode):
             return what
     return "not a regular file"
@@ -116,11 +121,14 @@ def guard_output(path, inputs=()) -> str:
     if src is not None:
         same = os.path.abspath(path) == src
         via = "" if same else f" ({display_path(src)}, through a link)"
-        raise UnsafePath(path, f"is an input of this run{via}; refusing to overwrite the input, choose another output name")
+        raise UnsafePath(
+            path, f"is an input of this run{via}; refusing to overwrite the input, choose another output name"
+        )
     return os.path.abspath(path)
 
 
 # --- inputs -----------------------------------------------------------------------------------
+
 
 def open_input(path, max_bytes, kind="file", register=True):
     """A regular file opened for binary reading, at most ``max_bytes`` long; UnsafePath otherwise.
@@ -231,8 +239,11 @@ def _check_size(path, width, height, max_pixels, max_side):
     if width < 1 or height < 1:
         raise UnsafePath(path, f"the image header claims {width}x{height} pixels")
     if width > max_side or height > max_side or width * height > max_pixels:
-        raise UnsafePath(path, f"the image header claims {width}x{height} pixels; the limit is {max_pixels} pixels "
-                               f"and {max_side} per side")
+        raise UnsafePath(
+            path,
+            f"the image header claims {width}x{height} pixels; the limit is {max_pixels} pixels "
+            f"and {max_side} per side",
+        )
 
 
 def _exr_attributes(fh, path):

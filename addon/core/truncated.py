@@ -17,6 +17,7 @@ import numpy as np
 from scipy.special import log_ndtr, ndtr
 
 from .geometry import HALF_PI
+
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 # Nearer the limit the Gaussian's width runs away (s ~ 18 at 0.999 and the centre; at the edges
@@ -32,7 +33,7 @@ def _exp_mean(u):
     u = np.asarray(u, float)
     small = np.abs(u) < 1e-3
     us = np.where(small, 1.0, u)
-    return np.where(small, u / 3.0 - u ** 3 / 45.0, 1.0 / np.tanh(us) - 1.0 / us)
+    return np.where(small, u / 3.0 - u**3 / 45.0, 1.0 / np.tanh(us) - 1.0 / us)
 
 
 def _exp_var(u):
@@ -40,8 +41,7 @@ def _exp_var(u):
     u = np.asarray(u, float)
     small = np.abs(u) < 1e-2
     us = np.where(small, 1.0, np.clip(u, -300, 300))  # beyond, 1/sinh^2 underflows to 0 anyway
-    return np.where(small, 1.0 / 3.0 - u ** 2 / 15.0 + 2.0 * u ** 4 / 189.0,
-                    1.0 / us ** 2 - 1.0 / np.sinh(us) ** 2)
+    return np.where(small, 1.0 / 3.0 - u**2 / 15.0 + 2.0 * u**4 / 189.0, 1.0 / us**2 - 1.0 / np.sinh(us) ** 2)
 
 
 def variance_cap(mean):
@@ -54,7 +54,7 @@ def variance_cap(mean):
         below = _exp_mean(mid) < mu
         lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
     u = 0.5 * (lo + hi)
-    return np.where(np.abs(mu) >= 1.0, 0.0, np.maximum(_exp_var(u), 0.0) * HALF_PI ** 2)
+    return np.where(np.abs(mu) >= 1.0, 0.0, np.maximum(_exp_var(u), 0.0) * HALF_PI**2)
 
 
 _CAP_GRID = {}
@@ -108,10 +108,10 @@ def z_moments(m, s):
     m1 = pa - pb
     m2 = 1.0 + (a * pa - b * pb)
     m3 = 2.0 * m1 + (a * a * pa - b * b * pb)
-    m4 = 3.0 * m2 + (a ** 3 * pa - b ** 3 * pb)
+    m4 = 3.0 * m2 + (a**3 * pa - b**3 * pb)
     c2 = np.maximum(m2 - m1 * m1, 1e-300)
-    c3 = m3 - 3.0 * m1 * m2 + 2.0 * m1 ** 3
-    c4 = m4 - 4.0 * m1 * m3 + 6.0 * m1 * m1 * m2 - 3.0 * m1 ** 4
+    c3 = m3 - 3.0 * m1 * m2 + 2.0 * m1**3
+    c4 = m4 - 4.0 * m1 * m3 + 6.0 * m1 * m1 * m2 - 3.0 * m1**4
     return m1, c2, c3, c4, m3
 
 

@@ -81,8 +81,10 @@ def collect_inputs(items):
     from ..core.names import collisions
 
     for a, b in collisions(list(names)):
-        problems.append(f"{names[b][0]}: material '{b}' would share its output file with '{a}' on a "
-                        f"case-insensitive file system; rename one")
+        problems.append(
+            f"{names[b][0]}: material '{b}' would share its output file with '{a}' on a "
+            f"case-insensitive file system; rename one"
+        )
     if len(paths) > MAX_INPUTS:
         problems.insert(0, f"{items[0]}: {len(paths)} input files, the limit is {MAX_INPUTS}")
         paths = paths[:0]
@@ -160,9 +162,27 @@ def run_parallel(paths, workers=None, progress=None, floor="min"):
     return [results[p] for p in paths]
 
 
-SUMMARY_FIELDS = ("material", "alpha_b", "theta0_deg", "theta1_deg", "alpha1", "m1", "energy_rmse", "mu_slope",
-                  "mean_rmse", "sigma2", "variance_rmse", "alpha_b_r", "alpha_b_g", "alpha_b_b", "kd_r", "kd_g",
-                  "kd_b", "outside_model", "notes")
+SUMMARY_FIELDS = (
+    "material",
+    "alpha_b",
+    "theta0_deg",
+    "theta1_deg",
+    "alpha1",
+    "m1",
+    "energy_rmse",
+    "mu_slope",
+    "mean_rmse",
+    "sigma2",
+    "variance_rmse",
+    "alpha_b_r",
+    "alpha_b_g",
+    "alpha_b_b",
+    "kd_r",
+    "kd_g",
+    "kd_b",
+    "outside_model",
+    "notes",
+)
 
 
 def summary_rows(profiles, fits):
@@ -170,15 +190,29 @@ def summary_rows(profiles, fits):
     for name in sorted(fits):
         f, p = fits[name], profiles[name]
         ch = f.get("channels", {})
-        rows.append({
-            "material": name, "alpha_b": f["alpha_b"], "theta0_deg": math.degrees(f["theta0"]),
-            "theta1_deg": math.degrees(f["theta1"]), "alpha1": f["alpha1"], "m1": f["m1"],
-            "energy_rmse": f["energy"]["rmse"], "mu_slope": f["mu_slope"], "mean_rmse": f["mean"]["rmse"],
-            "sigma2": f["sigma2"], "variance_rmse": f["variance"]["rmse"],
-            "alpha_b_r": ch.get("r", {}).get("alpha_b"), "alpha_b_g": ch.get("g", {}).get("alpha_b"),
-            "alpha_b_b": ch.get("b", {}).get("alpha_b"),
-            "kd_r": float(p.kd[0]), "kd_g": float(p.kd[1]), "kd_b": float(p.kd[2]),
-            "outside_model": f["outside_model"], "notes": "; ".join(f["notes"])})
+        rows.append(
+            {
+                "material": name,
+                "alpha_b": f["alpha_b"],
+                "theta0_deg": math.degrees(f["theta0"]),
+                "theta1_deg": math.degrees(f["theta1"]),
+                "alpha1": f["alpha1"],
+                "m1": f["m1"],
+                "energy_rmse": f["energy"]["rmse"],
+                "mu_slope": f["mu_slope"],
+                "mean_rmse": f["mean"]["rmse"],
+                "sigma2": f["sigma2"],
+                "variance_rmse": f["variance"]["rmse"],
+                "alpha_b_r": ch.get("r", {}).get("alpha_b"),
+                "alpha_b_g": ch.get("g", {}).get("alpha_b"),
+                "alpha_b_b": ch.get("b", {}).get("alpha_b"),
+                "kd_r": float(p.kd[0]),
+                "kd_g": float(p.kd[1]),
+                "kd_b": float(p.kd[2]),
+                "outside_model": f["outside_model"],
+                "notes": "; ".join(f["notes"]),
+            }
+        )
     return rows
 
 
@@ -224,8 +258,11 @@ def _publish(out_dir, inputs, docs, fits, summary, profiles, workers):
     if profiles is not None:
         from .plots import ORDER_PANELS
 
-        finals += [f"profiles_order{o}.png" for o in ORDER_PANELS] + ["fits.png", "energy_spline.png",
-                                                                        "correlation.png"]
+        finals += [f"profiles_order{o}.png" for o in ORDER_PANELS] + [
+            "fits.png",
+            "energy_spline.png",
+            "correlation.png",
+        ]
     for rel in finals:
         guard_output(os.path.join(out_dir, rel), inputs)
     os.makedirs(os.path.join(out_dir, "materials"), exist_ok=True)
@@ -237,8 +274,9 @@ def _publish(out_dir, inputs, docs, fits, summary, profiles, workers):
         write_text_atomic(summary, os.path.join(stage, "summary.csv"))
         if profiles is not None:
             _plot_all(profiles, fits, stage, workers)
-        for rel in sorted(os.listdir(stage)) + [os.path.join("materials", n) for n in
-                                                 sorted(os.listdir(os.path.join(stage, "materials")))]:
+        for rel in sorted(os.listdir(stage)) + [
+            os.path.join("materials", n) for n in sorted(os.listdir(os.path.join(stage, "materials")))
+        ]:
             src = os.path.join(stage, rel)
             if os.path.isfile(src) and not rel.startswith("."):
                 os.replace(src, guard_output(os.path.join(out_dir, rel), inputs))
@@ -266,8 +304,12 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, 
         profiles[name] = Profiles.from_json(pj, name=name)
         per_fit[name] = fit
         seconds.append(sec)
-        docs[os.path.join("materials", distinct_name(name) + ".json")] = \
-            {"material": name, "source": os.path.abspath(path), "profiles": pj, "fit": fit}
+        docs[os.path.join("materials", distinct_name(name) + ".json")] = {
+            "material": name,
+            "source": os.path.abspath(path),
+            "profiles": pj,
+            "fit": fit,
+        }
     if not profiles:
         return problems
     fits = fit_set(profiles, materials=per_fit)
@@ -280,6 +322,8 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, 
 
     inputs = [parse_source(p)[0] for p in paths]  # FILE:NAME reads FILE: that is the input to guard
     _publish(out_dir, inputs, docs, fits, buf.getvalue(), profiles if plots else None, workers)
-    log(f"analysed {len(profiles)} material(s) in {time.perf_counter() - t0:.1f} s "
-        f"(median {np.median(seconds):.2f} s each on one core); results in {out_dir}")
+    log(
+        f"analysed {len(profiles)} material(s) in {time.perf_counter() - t0:.1f} s "
+        f"(median {np.median(seconds):.2f} s each on one core); results in {out_dir}"
+    )
     return problems

@@ -41,6 +41,7 @@ def _median_time(fn, repeat):
 
 def _errors(got, want):
     """max relative error of alpha and variances, max absolute error of the mean (rad)."""
+
     def rel(k):
         a, b = np.asarray(got[k], float), np.asarray(want[k], float)
         return float(np.nanmax(np.abs(a - b) / np.abs(b)))
@@ -56,6 +57,7 @@ def _fmt(x, kind):
 
 
 # --- closed forms --------------------------------------------------------------------------
+
 
 def truncated_gaussian(mean_theta, sigma):
     """Slice f = exp(-(t-m)^2/2s^2 - p^2/2s^2) on the square, and its closed-form moments."""
@@ -75,9 +77,23 @@ def truncated_gaussian(mean_theta, sigma):
     def f(theta, phi, theta_o):
         return np.exp(-0.5 * ((theta - mean_theta) / sigma) ** 2 - 0.5 * (phi / sigma) ** 2)[None, :]
 
-    exact = {"alpha": mt[0] * pt[0], "mu_theta": mt[1], "mu_phi": pt[1], "sigma_tt": mt[2], "sigma_pp": pt[2],
-             "sigma_tp": 0.0, "skew_30": mt[3], "skew_03": pt[3], "skew_21": 0.0, "skew_12": 0.0,
-             "kurt_40": mt[4], "kurt_04": pt[4], "kurt_22": 0.0, "kurt_31": 0.0, "kurt_13": 0.0}
+    exact = {
+        "alpha": mt[0] * pt[0],
+        "mu_theta": mt[1],
+        "mu_phi": pt[1],
+        "sigma_tt": mt[2],
+        "sigma_pp": pt[2],
+        "sigma_tp": 0.0,
+        "skew_30": mt[3],
+        "skew_03": pt[3],
+        "skew_21": 0.0,
+        "skew_12": 0.0,
+        "kurt_40": mt[4],
+        "kurt_04": pt[4],
+        "kurt_22": 0.0,
+        "kurt_31": 0.0,
+        "kurt_13": 0.0,
+    }
     return f, exact
 
 
@@ -109,11 +125,15 @@ def bench_closed(quick):
         rows.append((sigma, "uniform grid 256²", t, e))
         t, e = run(lambda f, to: function_profiles(f, [to]))
         rows.append((sigma, "this project (graded Gauss, function interface)", t, e))
-    out = ["### Closed form: truncated Gaussian slices", "",
-           "Lobe centred at θ = −0.8 θo, σθ = σφ = σ; views θo = 0°, 30°, 60°, 85°; errors are the worst of",
-           "the four views against scipy's truncated-normal moments. Time is per view.", "",
-           "| σ (rad) | method | time / view | max rel. err α | max abs. err μθ (rad) | max rel. err σ² |",
-           "|---|---|---|---|---|---|"]
+    out = [
+        "### Closed form: truncated Gaussian slices",
+        "",
+        "Lobe centred at θ = −0.8 θo, σθ = σφ = σ; views θo = 0°, 30°, 60°, 85°; errors are the worst of",
+        "the four views against scipy's truncated-normal moments. Time is per view.",
+        "",
+        "| σ (rad) | method | time / view | max rel. err α | max abs. err μθ (rad) | max rel. err σ² |",
+        "|---|---|---|---|---|---|",
+    ]
     for sigma, name, t, e in rows:
         out.append(f"| {sigma} | {name} | {_fmt(t, 't')} | {_fmt(e[0], 'e')} | {_fmt(e[1], 'e')} | {_fmt(e[2], 'e')} |")
     return out
@@ -151,8 +171,11 @@ def bench_trilinear(quick):
     from ..core.merl import read_merl
     from ..core.profiles import compute_profiles
 
-    names = ("ggx_glossy", "ggx_mirror") if quick else ("lambertian", "ggx_mirror", "ggx_glossy", "ggx_rough",
-                                                       "gold", "rgl/satin_gold", "nielsen/greencloth")
+    names = (
+        ("ggx_glossy", "ggx_mirror")
+        if quick
+        else ("lambertian", "ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "rgl/satin_gold", "nielsen/greencloth")
+    )
     first = read_merl(samples.sample_path(names[0]))
     before = set(os.listdir(default_cache_dir())) if os.path.isdir(default_cache_dir()) else set()
     t0 = time.perf_counter()
@@ -166,23 +189,39 @@ def bench_trilinear(quick):
         t_tri, tri = _median_time(lambda: compute_profiles(table, split=split, interp="trilinear"), 3 if quick else 5)
         t_near, near = _median_time(lambda: compute_profiles(table, split=split, kd=tri.kd), 3 if quick else 5)
         lit = np.asarray(near["avg"]["alpha"]) > 1e-3 * np.nanmax(near["avg"]["alpha"])
-        d = {k: np.nanmax(np.abs(np.asarray(tri["avg"][k]) / np.asarray(near["avg"][k]) - 1)[lit])
-             for k in ("alpha", "sigma_tt")}
+        d = {
+            k: np.nanmax(np.abs(np.asarray(tri["avg"][k]) / np.asarray(near["avg"][k]) - 1)[lit])
+            for k in ("alpha", "sigma_tt")
+        }
         d_mu = np.nanmax(np.abs(np.asarray(tri["avg"]["mu_theta"]) - np.asarray(near["avg"]["mu_theta"]))[lit])
-        rows.append(f"| {name} | {t_tri:.2f} s | {t_near:.2f} s | {d['alpha']:.2e} | {d_mu:.2e} | {d['sigma_tt']:.2e} |")
-    return ["### Trilinear reading (`--interp trilinear`)", "",
+        rows.append(
+            f"| {name} | {t_tri:.2f} s | {t_near:.2f} s | {d['alpha']:.2e} | {d_mu:.2e} | {d['sigma_tt']:.2e} |"
+        )
+    return (
+        [
+            "### Trilinear reading (`--interp trilinear`)",
+            "",
             "A trilinear read of the table is linear in the cells' values, so for tables whose measured cells are the "
             "usual ones (every cell above the horizon: the samples, the Neural-BRDF decodes) it is one more cached "
             "slice operator: each quadrature node spreads over its 8 corner cells with its trilinear weights, "
             "renormalised over the cells above the horizon. Other masks are read point by point "
             "(`lookup_angles`, renormalised over the measured neighbours), as all of them were before (55 s per "
             "material under load). Trilinear reads the specular part max(ρ − kd, 0) of each cell, as the nearest "
-            "reading does.", "",
-            f"Operator build: {cold:.0f} s" + (" (built by this run)" if built else " (already cached)") + ".", "",
+            "reading does.",
+            "",
+            f"Operator build: {cold:.0f} s" + (" (built by this run)" if built else " (already cached)") + ".",
+            "",
             "| material | trilinear | nearest | max rel. Δα (trilinear vs nearest) | max abs. Δμθ (rad) | "
-            "max rel. Δσθθ |", "|---|---|---|---|---|---|"] + rows + [
-            "", "The differences are the two readings' own (a nearest-cell table is a step function, a trilinear one "
-                "is continuous), not errors of either; lit views only (α above 1e-3 of its peak)."]
+            "max rel. Δσθθ |",
+            "|---|---|---|---|---|---|",
+        ]
+        + rows
+        + [
+            "",
+            "The differences are the two readings' own (a nearest-cell table is a step function, a trilinear one "
+            "is continuous), not errors of either; lit views only (α above 1e-3 of its peak).",
+        ]
+    )
 
 
 def bench_tables(quick, names=None):
@@ -192,8 +231,11 @@ def bench_tables(quick, names=None):
     from ..core.profiles import _stats, compute_profiles, diffuse_floor, monte_carlo_profiles, specular_values
     from ..core.quadrature import RuleParams
 
-    names = names or (("lambertian", "ggx_mirror", "ggx_rough") if quick else
-                      ("lambertian", "phong", "ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "red_plastic"))
+    names = names or (
+        ("lambertian", "ggx_mirror", "ggx_rough")
+        if quick
+        else ("lambertian", "phong", "ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "red_plastic")
+    )
     views = default_views()
     ref_views = np.radians(REF_VIEWS_DEG)
     pick = np.searchsorted(views, ref_views - 1e-12)
@@ -211,18 +253,28 @@ def bench_tables(quick, names=None):
 
         compute_profiles(table, split=split)  # warm the operator cache; it is shared by all materials
         t, prof = _median_time(lambda: compute_profiles(table, split=split), 3 if quick else 7)
-        e = np.max([_errors({k: prof[ch][k][pick] for k in ("alpha", "mu_theta", "sigma_tt", "sigma_pp")},
-                            ref_at(i)) for i, ch in enumerate(("r", "g", "b", "avg"))], axis=0)
+        e = np.max(
+            [
+                _errors({k: prof[ch][k][pick] for k in ("alpha", "mu_theta", "sigma_tt", "sigma_pp")}, ref_at(i))
+                for i, ch in enumerate(("r", "g", "b", "avg"))
+            ],
+            axis=0,
+        )
         rows.append((name, "this project (cached operator)", t, e))
         # The operator of version 7, for comparison in the same run: lines point-sampled at cell edges.
         old = RuleParams(exact=False)
         compute_profiles(table, split=split, params=old)
         t, prof = _median_time(lambda: compute_profiles(table, split=split, params=old), 3 if quick else 7)
-        e = np.max([_errors({k: prof[ch][k][pick] for k in ("alpha", "mu_theta", "sigma_tt", "sigma_pp")},
-                            ref_at(i)) for i, ch in enumerate(("r", "g", "b", "avg"))], axis=0)
+        e = np.max(
+            [
+                _errors({k: prof[ch][k][pick] for k in ("alpha", "mu_theta", "sigma_tt", "sigma_pp")}, ref_at(i))
+                for i, ch in enumerate(("r", "g", "b", "avg"))
+            ],
+            axis=0,
+        )
         rows.append((name, "cached operator, point-sampled edges (v7)", t, e))
         evaluate = table_slice_evaluator(values)
-        for n in ((100_000,) if quick else (100_000, 1_000_000)):
+        for n in (100_000,) if quick else (100_000, 1_000_000):
             t0 = time.perf_counter()
             mc = monte_carlo_profiles(evaluate, ref_views, n, seed=2)
             t = (time.perf_counter() - t0) * len(views) / len(ref_views)
@@ -233,15 +285,21 @@ def bench_tables(quick, names=None):
         t = (time.perf_counter() - t0) * len(views) / len(ref_views)
         e = np.max([_errors({k: g[k][:, i] for k in ref_at(i)}, ref_at(i)) for i in range(4)], axis=0)
         rows.append((name, "uniform grid 256²", t, e))
-    out = ["### Tabulated samples against the converged reference", "",
-           "Specular part (kd split on; off for the Lambertian), all four channel sets (r, g, b, avg); errors are the worst over",
-           f"channels at θo = {', '.join(f'{v:g}°' for v in REF_VIEWS_DEG)} against the adaptive reference",
-           "(`integrate.reference_sums`). Time is for a whole material: 90 views, 15 moments, 4 channel",
-           "sets (Monte Carlo and grid timed on the reference views and scaled to 90).", "",
-           "| material | method | time / material | max rel. err α | max abs. err μθ (rad) | max rel. err σ² |",
-           "|---|---|---|---|---|---|"]
+    out = [
+        "### Tabulated samples against the converged reference",
+        "",
+        "Specular part (kd split on; off for the Lambertian), all four channel sets (r, g, b, avg); errors are the worst over",
+        f"channels at θo = {', '.join(f'{v:g}°' for v in REF_VIEWS_DEG)} against the adaptive reference",
+        "(`integrate.reference_sums`). Time is for a whole material: 90 views, 15 moments, 4 channel",
+        "sets (Monte Carlo and grid timed on the reference views and scaled to 90).",
+        "",
+        "| material | method | time / material | max rel. err α | max abs. err μθ (rad) | max rel. err σ² |",
+        "|---|---|---|---|---|---|",
+    ]
     for name, method, t, e in rows:
-        out.append(f"| {name} | {method} | {_fmt(t, 't')} | {_fmt(e[0], 'e')} | {_fmt(e[1], 'e')} | {_fmt(e[2], 'e')} |")
+        out.append(
+            f"| {name} | {method} | {_fmt(t, 't')} | {_fmt(e[0], 'e')} | {_fmt(e[1], 'e')} | {_fmt(e[2], 'e')} |"
+        )
     return out
 
 
@@ -273,11 +331,16 @@ def bench_memory():
 
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     script = _MEM_SCRIPT.format(root=root)
-    out = ["### Peak memory and the slice-operator cache", "",
-           "One material (ggx_glossy, 90 views, order 4) analysed in a fresh Python process; peak",
-           "resident set size (VmHWM; includes the interpreter, numpy and scipy, and the operator's",
-           "memory-mapped pages).", "",
-           "| run | wall time | peak RSS | RSS before analysis |", "|---|---|---|---|"]
+    out = [
+        "### Peak memory and the slice-operator cache",
+        "",
+        "One material (ggx_glossy, 90 views, order 4) analysed in a fresh Python process; peak",
+        "resident set size (VmHWM; includes the interpreter, numpy and scipy, and the operator's",
+        "memory-mapped pages).",
+        "",
+        "| run | wall time | peak RSS | RSS before analysis |",
+        "|---|---|---|---|",
+    ]
     with tempfile.TemporaryDirectory() as cold:
         for label, env_cache in (("cold cache (operator built)", cold), ("warm cache (operator loaded)", cold)):
             env = dict(os.environ, BRDF_MOMENTS_CACHE=env_cache)
@@ -297,9 +360,11 @@ def _seal_cost(cache):
     size = sum(os.path.getsize(os.path.join(folder, f)) for f in integrate._FILES)
     check = _median_time(lambda: [integrate.file_crc(os.path.join(folder, f)) for f in integrate._FILES], 5)[0]
     load = _median_time(lambda: integrate._load_operator(folder, views), 5)[0]
-    return [f"Seal check of the cached operator ({size / 1e6:.0f} MB, files in the page cache): CRC-32 of every "
-            f"file {check * 1e3:.0f} ms, the whole verified load {load * 1e3:.0f} ms (median of 5), paid once per "
-            f"process (SPEC §7: a damaged cache is rebuilt, never used)."]
+    return [
+        f"Seal check of the cached operator ({size / 1e6:.0f} MB, files in the page cache): CRC-32 of every "
+        f"file {check * 1e3:.0f} ms, the whole verified load {load * 1e3:.0f} ms (median of 5), paid once per "
+        f"process (SPEC §7: a damaged cache is rebuilt, never used)."
+    ]
 
 
 def bench_fits(quick):
@@ -320,10 +385,14 @@ def bench_fits(quick):
         t, _ = _median_time(lambda: fit_material(prof), 3 if quick else 7)
         times.append(t)
     n = 20 if quick else 100
-    out = ["### Fits and whole-set analysis", "",
-           "`fit_material` (energy spline with knot search, mean slope, variance, per-channel colour) on",
-           f"{len(names)} samples: median {np.median(times) * 1e3:.0f} ms per material "
-           f"(range {min(times) * 1e3:.0f}–{max(times) * 1e3:.0f} ms).", ""]
+    out = [
+        "### Fits and whole-set analysis",
+        "",
+        "`fit_material` (energy spline with knot search, mean slope, variance, per-channel colour) on",
+        f"{len(names)} samples: median {np.median(times) * 1e3:.0f} ms per material "
+        f"(range {min(times) * 1e3:.0f}–{max(times) * 1e3:.0f} ms).",
+        "",
+    ]
     folder = tempfile.mkdtemp(prefix="brdf-bench-set-")
     try:
         t0 = time.perf_counter()
@@ -341,11 +410,15 @@ def bench_fits(quick):
         t_np = time.perf_counter() - t0
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-    out += [f"`analyze` on {n} synthetic materials (`samples.synthetic_set`, GGX and Phong variations, tabulated",
-            f"to MERL files beforehand in {t_make:.0f} s), {os.cpu_count()} worker processes:", "",
-            "| run | wall time | per material |", "|---|---|---|",
-            f"| profiles + fits + JSON + CSV + 8 plots | {t_an:.1f} s | {t_an / n * 1e3:.0f} ms |",
-            f"| without plots | {t_np:.1f} s | {t_np / n * 1e3:.0f} ms |"]
+    out += [
+        f"`analyze` on {n} synthetic materials (`samples.synthetic_set`, GGX and Phong variations, tabulated",
+        f"to MERL files beforehand in {t_make:.0f} s), {os.cpu_count()} worker processes:",
+        "",
+        "| run | wall time | per material |",
+        "|---|---|---|",
+        f"| profiles + fits + JSON + CSV + 8 plots | {t_an:.1f} s | {t_an / n * 1e3:.0f} ms |",
+        f"| without plots | {t_np:.1f} s | {t_np / n * 1e3:.0f} ms |",
+    ]
     return out
 
 
@@ -354,8 +427,16 @@ def _witnesses(table, prof, fit, mode, dmu, k):
     re-measured fit at gain 1, and again after the edit's energy passes (each view's gain set by
     its own error), which is a table showing all three sliders' values at once. Each comes with
     the largest energy error up to ENERGY_VIEWS."""
-    from ..core.edit.legacy import (ENERGY_PASSES, ENERGY_VIEWS, GAIN_RANGE, EditTargets, _energy_ratio, synthesize,
-                            target_energy, view_goals)
+    from ..core.edit.legacy import (
+        ENERGY_PASSES,
+        ENERGY_VIEWS,
+        GAIN_RANGE,
+        EditTargets,
+        _energy_ratio,
+        synthesize,
+        target_energy,
+        view_goals,
+    )
     from ..core.fits import fit_material
     from ..core.profiles import compute_profiles
 
@@ -391,8 +472,10 @@ def bench_edit_legacy(quick):
     t0 = time.perf_counter()
     _pair_geometry()
     t_geo = time.perf_counter() - t0
-    head = ["| material | mode | target μ̃, σ̃² | reached μ̃, σ̃² | energy off | one synthesis | full edit | rounds | |",
-            "|---|---|---|---|---|---|---|---|---|"]
+    head = [
+        "| material | mode | target μ̃, σ̃² | reached μ̃, σ̃² | energy off | one synthesis | full edit | rounds | |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     requests, witnessed, outside, variance, shape = [], [], [], [], []
     witnessed_held, outside_held = [], []
     shape_keys = ("skew_30", "skew_12", "kurt_40", "kurt_22", "kurt_04")
@@ -415,16 +498,21 @@ def bench_edit_legacy(quick):
         return res, time.perf_counter() - t0, max(rounds)  # a bar stopped short gets a last call
 
     def row(name, mode, target, t_syn, res, t_edit, n_rounds, prof, fit, tg):
-        ok = (res.achieved_mu_slope is not None and abs(res.achieved_mu_slope - target[0]) < 0.01
-              and abs(res.achieved_sigma2 / target[1] - 1) < 0.02)
+        ok = (
+            res.achieved_mu_slope is not None
+            and abs(res.achieved_mu_slope - target[0]) < 0.01
+            and abs(res.achieved_sigma2 / target[1] - 1) < 0.02
+        )
         reached = "—" if res.achieved_mu_slope is None else f"{res.achieved_mu_slope:+.3f}, {res.achieved_sigma2:.4f}"
         # Largest energy error per view and channel up to 80 deg (beyond, broad lobes clip).
         want = target_energy(prof, fit, tg)
         got = np.stack([np.nan_to_num(np.asarray(res.profiles[c]["alpha"], float)) for c in "rgb"], axis=1)
         below = np.asarray(prof.theta_o) <= np.radians(80.0) + 1e-9
         off = float(np.nanmax(np.abs(got[below] / np.where(want[below] > 0, want[below], np.nan) - 1)))
-        return (f"| {name} | {mode} | {target[0]:+.3f}, {target[1]:.4f} | {reached} | {100 * off:.0f} % | {t_syn} | "
-                f"{t_edit:.1f} s | {n_rounds} | {'OK' if ok else 'miss'} |")
+        return (
+            f"| {name} | {mode} | {target[0]:+.3f}, {target[1]:.4f} | {reached} | {100 * off:.0f} % | {t_syn} | "
+            f"{t_edit:.1f} s | {n_rounds} | {'OK' if ok else 'miss'} |"
+        )
 
     names = ("ggx_mirror", "ggx_rough") if quick else ("ggx_mirror", "ggx_glossy", "ggx_rough")
     for name in names:
@@ -434,59 +522,110 @@ def bench_edit_legacy(quick):
         for mode in ("warp", "model"):
             for dmu, k in ((0.0, 1.0), (0.05, 1.5), (0.1, 0.7)):
                 mu = float(np.clip(fit["mu_slope"] + dmu, -1.0, 0.0))
-                s2 = float(min(fit["sigma2"] * k, np.pi ** 2 / 12))
+                s2 = float(min(fit["sigma2"] * k, np.pi**2 / 12))
                 tg = EditTargets(mu_slope=mu, sigma2=s2, mode=mode)
                 t_syn, _ = _median_time(lambda: synthesize(table, tg, prof, fit), 1 if quick else 3)
                 res, t_edit, n = timed_edit(table, tg, prof, fit)
-                requests.append(row(name, mode, (res.target_mu_slope, res.target_sigma2), f"{t_syn:.2f} s", res,
-                                    t_edit, n, prof, fit, tg))
+                requests.append(
+                    row(
+                        name,
+                        mode,
+                        (res.target_mu_slope, res.target_sigma2),
+                        f"{t_syn:.2f} s",
+                        res,
+                        t_edit,
+                        n,
+                        prof,
+                        fit,
+                        tg,
+                    )
+                )
             for k in (0.7, 1.3):
                 tg = EditTargets(sigma2=fit["sigma2"] * k, mode=mode)
                 res, t_edit, n = timed_edit(table, tg, prof, fit)
-                variance.append(row(name, mode, (res.target_mu_slope, res.target_sigma2), "", res, t_edit, n,
-                                    prof, fit, tg))
+                variance.append(
+                    row(name, mode, (res.target_mu_slope, res.target_sigma2), "", res, t_edit, n, prof, fit, tg)
+                )
                 shape.append(shape_row(name, mode, k, prof, res.profiles))
             for dmu, k in ((0.05, 1.3), (0.1, 0.7), (-0.05, 1.0)):
                 for held, (f, off) in zip((False, True), _witnesses(table, prof, fit, mode, dmu, k)):
                     if not -1.0 <= f["mu_slope"] <= 0.0 or (held and off > ENERGY_TOLERANCE):
                         (outside_held if held else outside).append(
-                            f"{name} {mode}: {f['mu_slope']:+.3f}" + (f" (energy {100 * off:.0f} % off)" if held else ""))
+                            f"{name} {mode}: {f['mu_slope']:+.3f}"
+                            + (f" (energy {100 * off:.0f} % off)" if held else "")
+                        )
                         continue
                     tg = EditTargets(mu_slope=f["mu_slope"], sigma2=f["sigma2"], mode=mode)
                     res, t_edit, n = timed_edit(table, tg, prof, fit)
                     (witnessed_held if held else witnessed).append(
-                        row(name, mode, (f["mu_slope"], f["sigma2"]), "", res, t_edit, n, prof, fit, tg))
+                        row(name, mode, (f["mu_slope"], f["sigma2"]), "", res, t_edit, n, prof, fit, tg)
+                    )
     n_ok = lambda rows: sum(r.endswith("| OK |") for r in rows)  # noqa: E731
-    return (["### Editing: re-synthesis time and the moments reached", "",
-             "One synthesis = one full 90x90x180 table, both orientations combined (the per-cell pair",
-             f"geometry is cached once per process: {t_geo:.1f} s). A full edit adds correction rounds",
-             "(tabulate, re-measure, step; 10, and up to 6 more while they close in) for the reciprocal",
-             "combination and the clipping.",
-             "OK = within the issue's tolerance (|Δμ̃| < 0.01 and |Δσ̃²|/σ̃² < 2 %). Energy off = the largest",
-             "|re-measured / wanted α − 1| per view and channel up to 80°.", "",
-             f"Variance-only edits, the most common (σ̃² × 0.7 and × 1.3, μ̃ left as measured; "
-             f"{n_ok(variance)}/{len(variance)} OK):", ""] + head + variance + ["",
-             f"Slider requests ({n_ok(requests)}/{len(requests)} OK):", ""] + head + requests +
-            ["", f"Witnessed targets, energy held: all three sliders reachable by construction "
-             f"({n_ok(witnessed_held)}/{len(witnessed_held)} OK):", ""] + head + witnessed_held +
-            ["", "No witness (slope outside the slider range [-1, 0], or the energy more than "
-             f"{100 * ENERGY_TOLERANCE:.0f} % off after the passes): " + (", ".join(outside_held) or "none"),
-             "", f"Witnessed moments, made at gain 1 with the energy not held ({n_ok(witnessed)}/{len(witnessed)} OK):",
-             ""] + head + witnessed +
-            ["", "Syntheses whose measured slope fell outside the slider range [-1, 0] (no witness): "
-             + (", ".join(outside) if outside else "none"),
-             "", "### Editing: does warp keep the measured shape?", "",
-             "Skewness and kurtosis profiles before and after the variance-only edits above: the largest",
-             "change over views up to 60°, as a fraction of the largest value the profile takes there.", "",
-             "| material | mode | σ̃² × | γ30 | γ12 | κ40 | κ22 | κ04 |", "|---|---|---|---|---|---|---|---|"]
-            + sorted(shape, key=lambda r: r.split(" | ")[1] != "warp"))
+    return (
+        [
+            "### Editing: re-synthesis time and the moments reached",
+            "",
+            "One synthesis = one full 90x90x180 table, both orientations combined (the per-cell pair",
+            f"geometry is cached once per process: {t_geo:.1f} s). A full edit adds correction rounds",
+            "(tabulate, re-measure, step; 10, and up to 6 more while they close in) for the reciprocal",
+            "combination and the clipping.",
+            "OK = within the issue's tolerance (|Δμ̃| < 0.01 and |Δσ̃²|/σ̃² < 2 %). Energy off = the largest",
+            "|re-measured / wanted α − 1| per view and channel up to 80°.",
+            "",
+            f"Variance-only edits, the most common (σ̃² × 0.7 and × 1.3, μ̃ left as measured; "
+            f"{n_ok(variance)}/{len(variance)} OK):",
+            "",
+        ]
+        + head
+        + variance
+        + ["", f"Slider requests ({n_ok(requests)}/{len(requests)} OK):", ""]
+        + head
+        + requests
+        + [
+            "",
+            f"Witnessed targets, energy held: all three sliders reachable by construction "
+            f"({n_ok(witnessed_held)}/{len(witnessed_held)} OK):",
+            "",
+        ]
+        + head
+        + witnessed_held
+        + [
+            "",
+            "No witness (slope outside the slider range [-1, 0], or the energy more than "
+            f"{100 * ENERGY_TOLERANCE:.0f} % off after the passes): " + (", ".join(outside_held) or "none"),
+            "",
+            f"Witnessed moments, made at gain 1 with the energy not held ({n_ok(witnessed)}/{len(witnessed)} OK):",
+            "",
+        ]
+        + head
+        + witnessed
+        + [
+            "",
+            "Syntheses whose measured slope fell outside the slider range [-1, 0] (no witness): "
+            + (", ".join(outside) if outside else "none"),
+            "",
+            "### Editing: does warp keep the measured shape?",
+            "",
+            "Skewness and kurtosis profiles before and after the variance-only edits above: the largest",
+            "change over views up to 60°, as a fraction of the largest value the profile takes there.",
+            "",
+            "| material | mode | σ̃² × | γ30 | γ12 | κ40 | κ22 | κ04 |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        + sorted(shape, key=lambda r: r.split(" | ")[1] != "warp")
+    )
 
 
 # Measured materials for the edit bench: across kinds (Neural-BRDF decodes, samples.measured_names()).
 EDIT_MEASURED = {
     "metal": ("rgl/satin_gold", "rgl/ilm_l3_37_metallic", "nielsen/paintedmetal", "rgl/irid_flake_paint1"),
-    "paint": ("rgl/colodur_azure_4e", "rgl/colodur_kalahari_2a", "rgl/laika_ceiling_paint_18_gray", "rgl/cm_white",
-              "rgl/chm_mint"),
+    "paint": (
+        "rgl/colodur_azure_4e",
+        "rgl/colodur_kalahari_2a",
+        "rgl/laika_ceiling_paint_18_gray",
+        "rgl/cm_white",
+        "rgl/chm_mint",
+    ),
     "plastic": ("rgl/cc_amber_citrine", "rgl/vch_golden_yellow", "rgl/aurora_white"),
     "fabric": ("rgl/acrylic_felt_green", "rgl/satin_blue", "rgl/satin_white", "nielsen/greencloth"),
     "paper": ("rgl/paper_blue", "rgl/paper_white", "rgl/cardboard", "nielsen/glossyredpaper", "nielsen/bluebook"),
@@ -499,8 +638,12 @@ def _edit_requests(fit, region):
     from ..core.edit import EditTargets
 
     s2, mu = fit["sigma2"], fit["mu_slope"]
-    out = [("σ̃² ×0.5", EditTargets(sigma2=s2 * 0.5)), ("σ̃² ×2", EditTargets(sigma2=min(s2 * 2.0, np.pi ** 2 / 12))),
-           ("α ×0.8", EditTargets(strength=0.8)), ("colour", EditTargets(colour=(1.0, 0.7, 0.4)))]
+    out = [
+        ("σ̃² ×0.5", EditTargets(sigma2=s2 * 0.5)),
+        ("σ̃² ×2", EditTargets(sigma2=min(s2 * 2.0, np.pi**2 / 12))),
+        ("α ×0.8", EditTargets(strength=0.8)),
+        ("colour", EditTargets(colour=(1.0, 0.7, 0.4))),
+    ]
     lo, hi = region._range_at(s2)
     for d in (+0.05, -0.05):
         if np.isfinite(lo):
@@ -555,8 +698,11 @@ def bench_edit(quick):
             if np.isfinite(syn):
                 times["synthesis"].append(syn)
                 times["apply"].append(apply_s)
-            rt = (res.achieved_mu_slope is not None and abs(res.achieved_mu_slope - res.target_mu_slope) < 0.01
-                  and abs(res.achieved_sigma2 / res.target_sigma2 - 1.0) < 0.02)
+            rt = (
+                res.achieved_mu_slope is not None
+                and abs(res.achieved_mu_slope - res.target_mu_slope) < 0.01
+                and abs(res.achieved_sigma2 / res.target_sigma2 - 1.0) < 0.02
+            )
             key = label.split(" ")[0] if label.startswith("μ̃") else label
             tot = totals.setdefault(key, {"n": 0, "meets": 0, **{k: [] for k in EDIT_FIGURES}, "excluded": []})
             tot["n"] += 1
@@ -565,45 +711,71 @@ def bench_edit(quick):
                 tot[k].append(f[k])
             roundtrip.setdefault(key, []).append(rt)
             figs = " | ".join(_fmt_fig(f[k], k) for k in EDIT_FIGURES)
-            rows.append(f"| {name} | {kind} | {label} | {figs} | {100 * f['excluded']:.0f} % | "
-                        f"{'yes' if f['meets'] else 'no'} | {'yes' if rt else 'no'} | "
-                        f"{'—' if not np.isfinite(syn) else f'{syn:.2f} s'} | {apply_s:.2f} s |"
-                        + (" clamped" if res.clamped else ""))
+            rows.append(
+                f"| {name} | {kind} | {label} | {figs} | {100 * f['excluded']:.0f} % | "
+                f"{'yes' if f['meets'] else 'no'} | {'yes' if rt else 'no'} | "
+                f"{'—' if not np.isfinite(syn) else f'{syn:.2f} s'} | {apply_s:.2f} s |"
+                + (" clamped" if res.clamped else "")
+            )
             if kind == "analytic" and not t.is_energy_only() and not os.environ.get("BRDF_MOMENTS_BENCH_NO_LEGACY"):
                 # The old pipeline on the same request, measured with the same stick.
                 t0 = time.perf_counter()
                 old = legacy.edit(table, t, prof, fit, remeasure=False)
                 old_s = time.perf_counter() - t0
                 mu, s2, _ = resolve_targets(t, fit)
-                fo = measure(old.table, view_targets(prof, fit, t, res.target_mu_slope, res.target_sigma2), prof).summary()
-                legacy_rows.append(f"| {name} | {label} | " + " | ".join(_fmt_fig(fo[k], k) for k in EDIT_FIGURES)
-                                   + f" | {old_s:.1f} s |")
+                fo = measure(
+                    old.table, view_targets(prof, fit, t, res.target_mu_slope, res.target_sigma2), prof
+                ).summary()
+                legacy_rows.append(
+                    f"| {name} | {label} | "
+                    + " | ".join(_fmt_fig(fo[k], k) for k in EDIT_FIGURES)
+                    + f" | {old_s:.1f} s |"
+                )
     med = lambda a: float(np.nanmedian(a)) if len(a) else float("nan")  # noqa: E731
-    head = ("| material | kind | edit | energy, worst | variance ratio, median | variance ratio, worst | "
-            "mean, worst (rad) | skew/kurt, worst ≤60° | views out of reach | meets §6 | fit round trip | "
-            "synthesis | Apply |")
-    out = ["### Editing, per view (issue 18): the reciprocal synthesis", "",
-           f"Targets (SPEC §6): energy {100 * TOLERANCES['energy']:.0f} %, variance ratio "
-           f"{100 * TOLERANCES['variance_median']:.0f} % median / {100 * TOLERANCES['variance_worst']:.0f} % worst, "
-           f"mean {TOLERANCES['mean']} rad, skewness/kurtosis {100 * TOLERANCES['shape']:.0f} %. Per channel, the "
-           "worst of r, g, b; views 5-80° holding ≥ 5 % of the peak energy; out-of-reach views not counted.", "",
-           "Summary (medians over materials; 'meets' counts materials meeting every target):", "",
-           "| edit | materials | meets §6 | energy | variance median | variance worst | mean (rad) | skew/kurt | "
-           "out of reach | fit round trip (secondary) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    head = (
+        "| material | kind | edit | energy, worst | variance ratio, median | variance ratio, worst | "
+        "mean, worst (rad) | skew/kurt, worst ≤60° | views out of reach | meets §6 | fit round trip | "
+        "synthesis | Apply |"
+    )
+    out = [
+        "### Editing, per view (issue 18): the reciprocal synthesis",
+        "",
+        f"Targets (SPEC §6): energy {100 * TOLERANCES['energy']:.0f} %, variance ratio "
+        f"{100 * TOLERANCES['variance_median']:.0f} % median / {100 * TOLERANCES['variance_worst']:.0f} % worst, "
+        f"mean {TOLERANCES['mean']} rad, skewness/kurtosis {100 * TOLERANCES['shape']:.0f} %. Per channel, the "
+        "worst of r, g, b; views 5-80° holding ≥ 5 % of the peak energy; out-of-reach views not counted.",
+        "",
+        "Summary (medians over materials; 'meets' counts materials meeting every target):",
+        "",
+        "| edit | materials | meets §6 | energy | variance median | variance worst | mean (rad) | skew/kurt | "
+        "out of reach | fit round trip (secondary) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for key, tot in totals.items():
-        out.append(f"| {key} | {tot['n']} | {tot['meets']} | " + " | ".join(_fmt_fig(med(tot[k]), k) for k in EDIT_FIGURES)
-                   + f" | {100 * med(tot['excluded']):.0f} % | {sum(roundtrip[key])}/{len(roundtrip[key])} |")
+        out.append(
+            f"| {key} | {tot['n']} | {tot['meets']} | "
+            + " | ".join(_fmt_fig(med(tot[k]), k) for k in EDIT_FIGURES)
+            + f" | {100 * med(tot['excluded']):.0f} % | {sum(roundtrip[key])}/{len(roundtrip[key])} |"
+        )
     if times["synthesis"]:
-        out += ["", f"Synthesis: median {med(times['synthesis']):.2f} s (max {max(times['synthesis']):.2f} s); "
-                    f"Apply (synthesis + re-measure): median {med(times['apply']):.2f} s "
-                    f"(max {max(times['apply']):.2f} s), over {len(times['apply'])} edits "
-                    "(α and colour edits are exact scalings, not counted)."]
+        out += [
+            "",
+            f"Synthesis: median {med(times['synthesis']):.2f} s (max {max(times['synthesis']):.2f} s); "
+            f"Apply (synthesis + re-measure): median {med(times['apply']):.2f} s "
+            f"(max {max(times['apply']):.2f} s), over {len(times['apply'])} edits "
+            "(α and colour edits are exact scalings, not counted).",
+        ]
     out += ["", head, "|" + "---|" * 13] + rows
     if legacy_rows:
-        out += ["", "The replaced pipeline (per-view warps averaged per cell, correction rounds; `edit.legacy`) on the "
-                    "same requests, measured the same way:", "",
-                "| material | edit | energy, worst | variance ratio, median | variance ratio, worst | mean, worst (rad) | "
-                "skew/kurt, worst ≤60° | time |", "|---|---|---|---|---|---|---|---|"] + legacy_rows
+        out += [
+            "",
+            "The replaced pipeline (per-view warps averaged per cell, correction rounds; `edit.legacy`) on the "
+            "same requests, measured the same way:",
+            "",
+            "| material | edit | energy, worst | variance ratio, median | variance ratio, worst | mean, worst (rad) | "
+            "skew/kurt, worst ≤60° | time |",
+            "|---|---|---|---|---|---|---|---|",
+        ] + legacy_rows
     return out
 
 
@@ -636,14 +808,23 @@ def main(args):
     unknown = set(sections) - set(ALL_SECTIONS) - set(EXTRA_SECTIONS)
     if unknown:
         raise ValueError(f"unknown bench section(s): {', '.join(sorted(unknown))}")
-    print(f"## Benchmarks ({time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores, "
-          f"Python {platform.python_version()}, numpy {np.__version__})\n")
+    print(
+        f"## Benchmarks ({time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}, numpy {np.__version__})\n"
+    )
     for name in sections:
-        lines = {"closed": lambda: bench_closed(args.quick), "tables": lambda: bench_tables(args.quick),
-                 "trilinear": lambda: bench_trilinear(args.quick),
-                 "memory": bench_memory, "fits": lambda: bench_fits(args.quick),
-                 "edit": lambda: bench_edit(args.quick), "edit-legacy": lambda: bench_edit_legacy(args.quick),
-                 "preview": lambda: _bench_preview(args.quick), "measured": lambda: _bench_measured(args.quick),
-                 "artist": lambda: _bench_artist(args.quick), "live": lambda: _bench_live(args.quick)}[name]()
+        lines = {
+            "closed": lambda: bench_closed(args.quick),
+            "tables": lambda: bench_tables(args.quick),
+            "trilinear": lambda: bench_trilinear(args.quick),
+            "memory": bench_memory,
+            "fits": lambda: bench_fits(args.quick),
+            "edit": lambda: bench_edit(args.quick),
+            "edit-legacy": lambda: bench_edit_legacy(args.quick),
+            "preview": lambda: _bench_preview(args.quick),
+            "measured": lambda: _bench_measured(args.quick),
+            "artist": lambda: _bench_artist(args.quick),
+            "live": lambda: _bench_live(args.quick),
+        }[name]()
         print("\n".join(lines) + "\n", flush=True)
     return 0

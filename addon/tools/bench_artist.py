@@ -21,8 +21,6 @@ SIZE = 128
 GT_SPP = 8192
 
 
-
-
 def bench_artist(quick=False):
     import samples
 
@@ -62,7 +60,7 @@ def bench_artist(quick=False):
 
     def cycles(scene, spp):
         scene.cycles.samples = spp
-        render_still(scene, tmp, quiet=True)          # warm-up (shader compilation, BVH)
+        render_still(scene, tmp, quiet=True)  # warm-up (shader compilation, BVH)
         t = time.perf_counter()
         render_still(scene, tmp, quiet=True)
         return time.perf_counter() - t, _read_exr(bpy, tmp)
@@ -73,32 +71,51 @@ def bench_artist(quick=False):
         fit = fit_material(prof)
         brdf = TableBRDF(table, prof)
         gt, noise, took = ground_truth(layout, [brdf], env, f"{name}-i19", gt_spp)
-        notes.append(f"{name}: ground truth {gt_spp} spp" + (f" ({took:.0f} s)" if took else " (cached)")
-                     + f", its own noise {noise:.2%} per pixel")
+        notes.append(
+            f"{name}: ground truth {gt_spp} spp"
+            + (f" ({took:.0f} s)" if took else " (cached)")
+            + f", its own noise {noise:.2%} per pixel"
+        )
         # 1. the default preview: the baked table at Build Preview's setting
         t = time.perf_counter()
         rgb, cov = bake_sphere(brdf, env, d, FINAL_SAMPLES, 0)
-        row(name, "**default preview**: baked table", f"{FINAL_SAMPLES}+{FINAL_SAMPLES} samples/texel",
-            time.perf_counter() - t, err(tile_image(rgb, cov), gt))
+        row(
+            name,
+            "**default preview**: baked table",
+            f"{FINAL_SAMPLES}+{FINAL_SAMPLES} samples/texel",
+            time.perf_counter() - t,
+            err(tile_image(rgb, cov), gt),
+        )
         # 2. the live preview's first image: a quarter-resolution bake, upsampled
         d0 = max(d // LIVE_DIAMETER_DIV, 8)
         t = time.perf_counter()
         rgb0, cov0 = bake_sphere(brdf, env, d0, LIVE_SAMPLES, 0)
         took = time.perf_counter() - t
         rgb0 = upsample(rgb0, d)
-        row(name, "live preview, first image", f"D/{LIVE_DIAMETER_DIV} = {d0} px, {LIVE_SAMPLES}+{LIVE_SAMPLES}",
-            took, err(layout.compose([np.dstack([rgb0 * cov[..., None], cov])]), gt))
+        row(
+            name,
+            "live preview, first image",
+            f"D/{LIVE_DIAMETER_DIV} = {d0} px, {LIVE_SAMPLES}+{LIVE_SAMPLES}",
+            took,
+            err(layout.compose([np.dstack([rgb0 * cov[..., None], cov])]), gt),
+        )
         # 3. OSL: tabulated, and the sketch (moment model) against the table it sketches
         params = MomentParams.from_fit(fit, tuple(prof.kd))
         for mode, src in (("tabulated", brdf), ("model", params)):
             for spp, lobe in osl_settings:
                 bpy.ops.wm.read_homefile(use_empty=True)
                 scene = bpy.context.scene
-                build_preview(scene, src, None, path="osl", mode=mode, env=env_path, size=SIZE, samples=spp,
-                              lobe_samples=lobe)
+                build_preview(
+                    scene, src, None, path="osl", mode=mode, env=env_path, size=SIZE, samples=spp, lobe_samples=lobe
+                )
                 took, img = cycles(scene, spp)
-                row(name, "OSL tabulated" if mode == "tabulated" else "OSL sketch (moment model)",
-                    f"{spp} spp x {lobe} lobe", took, err(img, gt))
+                row(
+                    name,
+                    "OSL tabulated" if mode == "tabulated" else "OSL sketch (moment model)",
+                    f"{spp} spp x {lobe} lobe",
+                    took,
+                    err(img, gt),
+                )
         # 4. the artist's material outside OSL: the fitted Principled BSDF in Cycles (SVM)
         t = time.perf_counter()
         pfit = fit_principled(table)
@@ -108,23 +125,28 @@ def bench_artist(quick=False):
         sc.configure_render(scene, layout, "baked", 16)
         scene.cycles.max_bounces = scene.cycles.diffuse_bounces = scene.cycles.glossy_bounces = 1
         sc.ensure_camera(scene, layout)
-        sc.ensure_world(scene, env_path, path="osl")     # the map's importance sampling, as an artist's world
+        sc.ensure_world(scene, env_path, path="osl")  # the map's importance sampling, as an artist's world
         (obj,) = sc.ensure_spheres(scene, layout)
         mat = bpy.data.materials.new("bench principled")
         mat.use_nodes = True
         artist.apply_principled(mat, pfit)
         obj.data.materials.clear()
         obj.data.materials.append(mat)
-        for spp in ((256,) if quick else (256, 1024)):
+        for spp in (256,) if quick else (256, 1024):
             took, img = cycles(scene, spp)
             row(name, "artist's material: Principled approx. (Cycles)", f"{spp} spp", took, err(img, gt))
-        notes.append(f"{name}: Principled fit in {t_fit:.2f} s: roughness {pfit.roughness:.4f}, metallic "
-                     f"{pfit.metallic:.3f}, specular {pfit.specular:.4f}, base "
-                     + ", ".join(f"{v:.3f}" for v in pfit.base_color)
-                     + f"; stated BRDF error {pfit.error:.1%}, albedo within {pfit.albedo_error:.1%}")
-    out = ["### What the artist sees, against the converged reference (one sphere, D = "
-           f"{d} px, `studio` HDRI)", "",
-           "| material | what | setting | time | rel. RMSE per pixel (RMSE/RMS) |", "|---|---|---|---|---|"]
+        notes.append(
+            f"{name}: Principled fit in {t_fit:.2f} s: roughness {pfit.roughness:.4f}, metallic "
+            f"{pfit.metallic:.3f}, specular {pfit.specular:.4f}, base "
+            + ", ".join(f"{v:.3f}" for v in pfit.base_color)
+            + f"; stated BRDF error {pfit.error:.1%}, albedo within {pfit.albedo_error:.1%}"
+        )
+    out = [
+        f"### What the artist sees, against the converged reference (one sphere, D = {d} px, `studio` HDRI)",
+        "",
+        "| material | what | setting | time | rel. RMSE per pixel (RMSE/RMS) |",
+        "|---|---|---|---|---|",
+    ]
     out += rows
     out += [f"- {n}" for n in notes]
     return out + [""] + bench_live(quick)
@@ -149,21 +171,22 @@ def bench_live(quick=False):
     from ..core.render import Environment, TableBRDF, bake_sphere
     from ..core.render.live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
 
-    d = 115                                      # one sphere of the 256-wide preview
+    d = 115  # one sphere of the 256-wide preview
     d0 = max(d // LIVE_DIAMETER_DIV, 8)
     # A bright light on a dim sky: the bake's cost does not depend on the map's content.
     env = Environment.from_function(
-        lambda w: 0.2 + 20.0 * np.exp(-((w[:, 0:1] - 0.5) ** 2 + (w[:, 2:3] - 0.7) ** 2) / 0.01).repeat(3, 1), 256, 128)
+        lambda w: 0.2 + 20.0 * np.exp(-((w[:, 0:1] - 0.5) ** 2 + (w[:, 2:3] - 0.7) ** 2) / 0.01).repeat(3, 1), 256, 128
+    )
     names = LIVE_NAMES[:2] if quick else LIVE_NAMES
     rows, first, refined = [], [], []
     for name in names:
         table = read_merl(samples.sample_path(name))
         prof = compute_profiles(table)
         fit = fit_material(prof)
-        region = reachable_region(prof, fit)          # once per material, as the panel does
+        region = reachable_region(prof, fit)  # once per material, as the panel does
         fast_edit(table, EditTargets(sigma2=fit["sigma2"] * 1.1), prof, fit, draft=True, region=region)  # warm
         for s2 in (1.25, 1.5, 0.8):
-            targets = EditTargets(sigma2=min(fit["sigma2"] * s2, math.pi ** 2 / 12))
+            targets = EditTargets(sigma2=min(fit["sigma2"] * s2, math.pi**2 / 12))
             t0 = time.perf_counter()
             draft = fast_edit(table, targets, prof, fit, draft=True, region=region)
             t1 = time.perf_counter()
@@ -175,17 +198,30 @@ def bench_live(quick=False):
             t4 = time.perf_counter()
             first.append(t2 - t0)
             refined.append(t4 - t0)
-            rows.append(f"| {name} | {s2} | {t1 - t0:.2f} s | {t2 - t1:.2f} s | **{t2 - t0:.2f} s** | {t3 - t2:.2f} s | "
-                        f"{t4 - t3:.2f} s | {t4 - t0:.2f} s |")
+            rows.append(
+                f"| {name} | {s2} | {t1 - t0:.2f} s | {t2 - t1:.2f} s | **{t2 - t0:.2f} s** | {t3 - t2:.2f} s | "
+                f"{t4 - t3:.2f} s | {t4 - t0:.2f} s |"
+            )
     med = float(np.median(first))
-    return ["### Slider move to the live preview (`bench --only live`)", "",
+    return (
+        [
+            "### Slider move to the live preview (`bench --only live`)",
+            "",
             f"Per move: the draft synthesis, the D/{LIVE_DIAMETER_DIV} = {d0} px bake of it ({LIVE_SAMPLES}+"
             f"{LIVE_SAMPLES} samples) — the first image —, then the full synthesis and the D = {d} px bake "
             f"({FINAL_SAMPLES}+{FINAL_SAMPLES}) that replaces it. The reachable region is computed once per material.",
-            "", "| material | σ̃² × | draft synthesis | draft bake | first image | full synthesis | full bake | "
-                "refined image |", "|---|---|---|---|---|---|---|---|"] + rows + [
-            "", f"Median slider-to-first-image latency {med:.2f} s (range {min(first):.2f}–{max(first):.2f} s), "
-                f"target 1 s: {'met' if med <= 1.0 else 'missed'}; refined image median {float(np.median(refined)):.2f} s."]
+            "",
+            "| material | σ̃² × | draft synthesis | draft bake | first image | full synthesis | full bake | "
+            "refined image |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        + rows
+        + [
+            "",
+            f"Median slider-to-first-image latency {med:.2f} s (range {min(first):.2f}–{max(first):.2f} s), "
+            f"target 1 s: {'met' if med <= 1.0 else 'missed'}; refined image median {float(np.median(refined)):.2f} s.",
+        ]
+    )
 
 
 def _tmp_dir():

@@ -91,8 +91,13 @@ def _analyze(inputs, out, floor):
     if os.path.isdir(out):
         shutil.rmtree(out)
     t, c = time.perf_counter(), os.times()
-    res = subprocess.run([sys.executable, "-m", "addon", "analyze", *inputs, "--out", out, "--floor", floor],
-                         cwd=ROOT, capture_output=True, text=True, env=dict(os.environ))
+    res = subprocess.run(
+        [sys.executable, "-m", "addon", "analyze", *inputs, "--out", out, "--floor", floor],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env=dict(os.environ),
+    )
     wall, c1 = time.perf_counter() - t, os.times()
     # CPU seconds of analyze and its workers: on a shared machine, steadier than the wall time.
     cpu = (c1.children_user - c.children_user) + (c1.children_system - c.children_system)
@@ -144,33 +149,46 @@ def bench_measured(quick=False):
             return f"{os.path.splitext(samples.MEASURED_SETS[name.split('/')[0]])[0]}/{key}"
         return key
 
-    lines = ["### Measured materials: the whole set through `analyze`", "",
-             f"{len(names)} materials ({len(sets)} weights files), `python -m addon analyze "
-             f"samples/measured/*.npz --floor F` with plots, decoding included (each worker decodes its "
-             f"network from the .npz; nothing cached), the slice operator already cached. "
-             f"Load average {load:.1f} on {os.cpu_count()} cores when it finished.", "",
-             "| floor | wall time (process) | CPU time (all processes) | analyze's own line "
-             "| stderr lines (not progress) | NaN profiles ≤ 85° |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "### Measured materials: the whole set through `analyze`",
+        "",
+        f"{len(names)} materials ({len(sets)} weights files), `python -m addon analyze "
+        f"samples/measured/*.npz --floor F` with plots, decoding included (each worker decodes its "
+        f"network from the .npz; nothing cached), the slice operator already cached. "
+        f"Load average {load:.1f} on {os.cpu_count()} cores when it finished.",
+        "",
+        "| floor | wall time (process) | CPU time (all processes) | analyze's own line "
+        "| stderr lines (not progress) | NaN profiles ≤ 85° |",
+        "|---|---|---|---|---|---|",
+    ]
     for floor, ((wall, cpu), noise, _fits, _rows, nan, last) in runs.items():
         lines.append(f"| {floor} | {wall:.1f} s | {cpu:.1f} s | {last.split(';')[0]} | {len(noise)} | {nan} |")
     wall_d, cpu_d = np.array(dec_times).T
-    lines += ["", f"Decoding one network into a MERL table (numpy, float32, chunks of {nbrdf.CHUNK} cells, one "
-              f"process): median {1e3 * float(np.median(wall_d)):.0f} ms wall, {1e3 * float(np.median(cpu_d)):.0f} ms "
-              f"CPU; {wall_d.sum():.1f} s wall for all {len(names)}.", ""]
+    lines += [
+        "",
+        f"Decoding one network into a MERL table (numpy, float32, chunks of {nbrdf.CHUNK} cells, one "
+        f"process): median {1e3 * float(np.median(wall_d)):.0f} ms wall, {1e3 * float(np.median(cpu_d)):.0f} ms "
+        f"CPU; {wall_d.sum():.1f} s wall for all {len(names)}.",
+        "",
+    ]
     for floor, (_wall, noise, _fits, _rows, _nan, _last) in runs.items():
         for ln in noise[:5]:
             lines.append(f"- stderr ({floor}): `{ln.strip()[:150]}`")
-    lines += ["", "### Measured materials: fits, floors and the paper's model", "",
-              f"kd: the average channel's floor, `min` the paper's minimum over the 45° slice, `robust` the "
-              f"{100 * ROBUST_PERCENTILE:.0f}th area percentile of the slice's cells within "
-              f"{math.degrees(ROBUST_MAX_ANGLE):.0f}° of the normal. Fits (μ̃, σ̃², α̃b, energy RMSE) per floor. "
-              f"Diagnostics (module docstring of addon/tools/bench_measured.py): back-scatter ratio (> {BACKSCATTER_LIMIT}), "
-              f"in-plane peak (grazing if beyond ±{GRAZING_PEAK_DEG:.0f}°), width ratio at 1/10 and 1/2 of the "
-              f"peak (> {TWO_SCALE_LIMIT:g}).", "",
-              "| material | kd min | paper min at | kd robust | μ̃ min | σ̃² min | α̃b min | μ̃ robust | σ̃² robust | α̃b robust "
-              "| E-RMSE robust | back-scatter | in-plane peak | w10/w50 | outside the model |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "### Measured materials: fits, floors and the paper's model",
+        "",
+        f"kd: the average channel's floor, `min` the paper's minimum over the 45° slice, `robust` the "
+        f"{100 * ROBUST_PERCENTILE:.0f}th area percentile of the slice's cells within "
+        f"{math.degrees(ROBUST_MAX_ANGLE):.0f}° of the normal. Fits (μ̃, σ̃², α̃b, energy RMSE) per floor. "
+        f"Diagnostics (module docstring of addon/tools/bench_measured.py): back-scatter ratio (> {BACKSCATTER_LIMIT}), "
+        f"in-plane peak (grazing if beyond ±{GRAZING_PEAK_DEG:.0f}°), width ratio at 1/10 and 1/2 of the "
+        f"peak (> {TWO_SCALE_LIMIT:g}).",
+        "",
+        "| material | kd min | paper min at | kd robust | μ̃ min | σ̃² min | α̃b min | μ̃ robust | σ̃² robust | α̃b robust "
+        "| E-RMSE robust | back-scatter | in-plane peak | w10/w50 | outside the model |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     counts = {"back-scatter": [], "grazing peak": [], "two scales": [], "fit notes": []}
     kd_ratio, min_at = [], []
     for name in names:
@@ -199,18 +217,27 @@ def bench_measured(quick=False):
         def f(v, fmt):
             return "—" if v is None else format(v, fmt)
 
-        lines.append(f"| {name} | {kmin:.4f} | {min_at[-1]:.0f}° | {krob:.4f} | {f(fmin['mu_slope'], '+.3f')} | {f(fmin['sigma2'], '.3f')} "
-                     f"| {fmin['alpha_b']:.3g} | {f(frob['mu_slope'], '+.3f')} | {f(frob['sigma2'], '.3f')} "
-                     f"| {frob['alpha_b']:.3g} | {frob['energy']['rmse']:.3f} | {back:.2f} | {peak:+.0f}° "
-                     f"| {w10 / w50:.1f} | {', '.join(why) or '—'} |")
+        lines.append(
+            f"| {name} | {kmin:.4f} | {min_at[-1]:.0f}° | {krob:.4f} | {f(fmin['mu_slope'], '+.3f')} | {f(fmin['sigma2'], '.3f')} "
+            f"| {fmin['alpha_b']:.3g} | {f(frob['mu_slope'], '+.3f')} | {f(frob['sigma2'], '.3f')} "
+            f"| {frob['alpha_b']:.3g} | {frob['energy']['rmse']:.3f} | {back:.2f} | {peak:+.0f}° "
+            f"| {w10 / w50:.1f} | {', '.join(why) or '—'} |"
+        )
     inside = [n for n in names if all(n not in v for v in counts.values())]
-    lines += ["", "Counts: " + "; ".join(f"{k} {len(v)}" for k, v in counts.items())
-              + f"; none of these {len(inside)} ({', '.join(inside)}).",
-              f"Robust / paper kd: median {np.median(kd_ratio):.3g}×, "
-              f"{sum(r > 10 for r in kd_ratio)} of {len(names)} materials more than 10× higher. The cell that "
-              f"sets the paper's minimum has a direction {'beyond 80°'} from the normal for "
-              f"{sum(a > 80 for a in min_at)} of {len(names)} materials, beyond 85° for {sum(a > 85 for a in min_at)}.",
-              "Correlation fits (σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12): "
-              + ", ".join(f"{fl} a = {runs[fl][2]['correlation']['a']:.3f} (RMSE {runs[fl][2]['correlation']['rmse']:.3g})"
-                          for fl in runs if runs[fl][2].get("correlation", {}).get("a") is not None)]
+    lines += [
+        "",
+        "Counts: "
+        + "; ".join(f"{k} {len(v)}" for k, v in counts.items())
+        + f"; none of these {len(inside)} ({', '.join(inside)}).",
+        f"Robust / paper kd: median {np.median(kd_ratio):.3g}×, "
+        f"{sum(r > 10 for r in kd_ratio)} of {len(names)} materials more than 10× higher. The cell that "
+        f"sets the paper's minimum has a direction {'beyond 80°'} from the normal for "
+        f"{sum(a > 80 for a in min_at)} of {len(names)} materials, beyond 85° for {sum(a > 85 for a in min_at)}.",
+        "Correlation fits (σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12): "
+        + ", ".join(
+            f"{fl} a = {runs[fl][2]['correlation']['a']:.3f} (RMSE {runs[fl][2]['correlation']['rmse']:.3g})"
+            for fl in runs
+            if runs[fl][2].get("correlation", {}).get("a") is not None
+        ),
+    ]
     return lines

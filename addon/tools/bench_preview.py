@@ -64,8 +64,14 @@ def edited_table(table, name):
         return read_merl(path)
     prof = compute_profiles(table)
     fit = fit_material(prof)
-    res = edit(table, EditTargets(sigma2=min(fit["sigma2"] * EDIT["sigma2_scale"], np.pi ** 2 / 12),
-                                  strength=EDIT["strength"], mode="model"), prof, fit)
+    res = edit(
+        table,
+        EditTargets(
+            sigma2=min(fit["sigma2"] * EDIT["sigma2_scale"], np.pi**2 / 12), strength=EDIT["strength"], mode="model"
+        ),
+        prof,
+        fit,
+    )
     write_merl(res.table, path)
     return read_merl(path)
 
@@ -81,8 +87,9 @@ def _environment(bpy):
     import OpenEXR
     from ..core.render import Environment
 
-    hits = glob.glob(os.path.join(os.path.dirname(np.__file__), "..", "bpy", "*", "datafiles", "studiolights",
-                                  "world", f"{ENV}.exr"))
+    hits = glob.glob(
+        os.path.join(os.path.dirname(np.__file__), "..", "bpy", "*", "datafiles", "studiolights", "world", f"{ENV}.exr")
+    )
     if not hits:
         raise RuntimeError(f"the {ENV} HDRI was not found (install the bpy module)")
     return Environment(OpenEXR.File(hits[0]).channels()["RGB"].pixels, ENV), hits[0]
@@ -96,8 +103,12 @@ def reference_version():
     from ..core.render import envmap, estimators, lobe, scene
 
     h = hashlib.sha256(b"reference")
-    for fn in (estimators.render_reference, estimators.reference_sphere, estimators._to_world,
-               estimators._cosine_sample):
+    for fn in (
+        estimators.render_reference,
+        estimators.reference_sphere,
+        estimators._to_world,
+        estimators._cosine_sample,
+    ):
         h.update(inspect.getsource(fn).encode())
     h.update(_source_hash(envmap, lobe, scene).encode())
     return h.hexdigest()[:16]
@@ -148,8 +159,16 @@ def _read_exr(bpy, path):
 def bench_preview(quick=False):
     import samples
     from ..core.merl import read_merl
-    from ..core.render import (BakeCache, ModelBRDF, TableBRDF, normalized_rmse, relative_rmse, render_baked,
-                              render_reference, sphere_layout)
+    from ..core.render import (
+        BakeCache,
+        ModelBRDF,
+        TableBRDF,
+        normalized_rmse,
+        relative_rmse,
+        render_baked,
+        render_reference,
+        sphere_layout,
+    )
 
     try:
         from ..wheel import import_bpy
@@ -178,8 +197,11 @@ def bench_preview(quick=False):
         edited = edited_table(table, name)
         brdfs = [TableBRDF(table), TableBRDF(edited)]
         gt, gt_noise, gt_time = ground_truth(layout, brdfs, env, name, gt_spp)
-        notes.append(f"{name}: ground truth {gt_spp} spp" + (f" ({gt_time:.0f} s)" if gt_time else " (cached)")
-                     + f", its own noise {gt_noise:.2%} per pixel")
+        notes.append(
+            f"{name}: ground truth {gt_spp} spp"
+            + (f" ({gt_time:.0f} s)" if gt_time else " (cached)")
+            + f", its own noise {gt_noise:.2%} per pixel"
+        )
         refs = []
         for spp in ref_spps:
             t = time.perf_counter()
@@ -191,9 +213,11 @@ def bench_preview(quick=False):
         baked = []
         for k in bake_ks:
             if bpy is None:
+
                 def bake():
-                    env._irr_maps.clear()         # the irradiance map is part of a first bake
+                    env._irr_maps.clear()  # the irradiance map is part of a first bake
                     return render_baked(layout, brdfs, env, lobe_samples=k, seed=0)
+
                 took, img = _median_time(bake, rep)
                 e = err(img, gt)
                 rows.append((name, "baked (numpy only, no bpy)", f"{k}+{k} samples/texel", took, e))
@@ -205,34 +229,46 @@ def bench_preview(quick=False):
                 # A new empty scene each time: the preview skips images whose bake is current,
                 # so a second build in the same scene would time nothing.
                 bpy.ops.wm.read_homefile(use_empty=True)
-                env._irr_maps.clear()             # the irradiance map is part of a first bake
-                build_mod.CACHE = BakeCache()     # memory only: really bake, never read a cached one
+                env._irr_maps.clear()  # the irradiance map is part of a first bake
+                build_mod.CACHE = BakeCache()  # memory only: really bake, never read a cached one
                 return bpy.context.scene
 
             def bake(scene):
-                info = build_preview(scene, brdfs[0], brdfs[1], path="baked", env=env_path, size=SIZE,
-                                     samples=16, bake_samples=k)
+                info = build_preview(
+                    scene, brdfs[0], brdfs[1], path="baked", env=env_path, size=SIZE, samples=16, bake_samples=k
+                )
                 if len(info.baked) != 2:
                     raise RuntimeError(f"the timed build baked {info.baked}, not both spheres")
                 return scene
+
             t_bake, scene = _median_time(bake, rep, setup=fresh_scene)
             t_render, _ = _median_time(lambda: render_still(scene, tmp, quiet=True), rep)
             build_mod.CACHE = None
             e = err(_read_exr(bpy, tmp), gt)
-            rows.append((name, "baked: numpy bake + Cycles 16 spp", f"{k}+{k} samples/texel "
-                         f"({t_bake:.2f} s + {t_render:.2f} s)", t_bake + t_render, e))
+            rows.append(
+                (
+                    name,
+                    "baked: numpy bake + Cycles 16 spp",
+                    f"{k}+{k} samples/texel ({t_bake:.2f} s + {t_render:.2f} s)",
+                    t_bake + t_render,
+                    e,
+                )
+            )
             baked.append((k, t_bake + t_render, e))
         # the target: within 2x the reference's error in a tenth of its time (each reference run)
         for spp, t_ref, e_ref in refs:
             fit = [b for b in baked if b[1] <= t_ref / 10]
             if fit:
                 k, t_b, e_b = min(fit, key=lambda b: b[2][0])
-                verdicts.append(f"| {name} | {spp} spp: {t_ref:.1f} s, {e_ref[0]:.2%} ({e_ref[1]:.2%}) | "
-                                f"{k}+{k}: {t_b:.2f} s, {e_b[0]:.2%} ({e_b[1]:.2%}) | {e_b[0] / e_ref[0]:.2f}x "
-                                f"({e_b[1] / e_ref[1]:.2f}x) | {'met' if e_b[0] <= 2 * e_ref[0] else 'missed'} |")
+                verdicts.append(
+                    f"| {name} | {spp} spp: {t_ref:.1f} s, {e_ref[0]:.2%} ({e_ref[1]:.2%}) | "
+                    f"{k}+{k}: {t_b:.2f} s, {e_b[0]:.2%} ({e_b[1]:.2%}) | {e_b[0] / e_ref[0]:.2f}x "
+                    f"({e_b[1] / e_ref[1]:.2f}x) | {'met' if e_b[0] <= 2 * e_ref[0] else 'missed'} |"
+                )
             else:
-                verdicts.append(f"| {name} | {spp} spp: {t_ref:.1f} s | no bake within {t_ref / 10:.2f} s | — | "
-                                "missed |")
+                verdicts.append(
+                    f"| {name} | {spp} spp: {t_ref:.1f} s | no bake within {t_ref / 10:.2f} s | — | missed |"
+                )
         if bpy is None:
             continue
         from ..blender.preview import model_params
@@ -243,38 +279,68 @@ def bench_preview(quick=False):
                 mbrdfs = [ModelBRDF(model_params(b)) for b in brdfs]
                 model_gt, m_noise, _ = ground_truth(layout, mbrdfs, env, name + "-model", 4096)
                 e_model = err(model_gt, gt)
-                notes.append(f"{name}: the moment model itself differs from the table by {e_model[0]:.1%} per pixel "
-                             f"({e_model[1]:.1%} RMSE/RMS); model ground truth 4096 spp, noise {m_noise:.2%}")
+                notes.append(
+                    f"{name}: the moment model itself differs from the table by {e_model[0]:.1%} per pixel "
+                    f"({e_model[1]:.1%} RMSE/RMS); model ground truth 4096 spp, noise {m_noise:.2%}"
+                )
             for spp, lobe in osl_settings:
                 bpy.ops.wm.read_homefile(use_empty=True)
                 scene = bpy.context.scene
                 srcs = brdfs if mode == "tabulated" else [model_params(b) for b in brdfs]
-                build_preview(scene, srcs[0], srcs[1], path="osl", mode=mode, env=env_path, size=SIZE, samples=spp,
-                              lobe_samples=lobe)
+                build_preview(
+                    scene,
+                    srcs[0],
+                    srcs[1],
+                    path="osl",
+                    mode=mode,
+                    env=env_path,
+                    size=SIZE,
+                    samples=spp,
+                    lobe_samples=lobe,
+                )
                 t0 = time.perf_counter()
-                render_still(scene, tmp, quiet=True)       # warm-up: OSL compiles the shader on first use
+                render_still(scene, tmp, quiet=True)  # warm-up: OSL compiles the shader on first use
                 first = time.perf_counter() - t0
                 took, _ = _median_time(lambda: render_still(scene, tmp, quiet=True), rep)
                 img = _read_exr(bpy, tmp)
                 e = err(img, model_gt if mode == "model" else gt)
-                rows.append((name, f"OSL {mode}" + (" (vs model)" if mode == "model" else ""),
-                             f"{spp} spp x {lobe} lobe", took, e))
+                rows.append(
+                    (
+                        name,
+                        f"OSL {mode}" + (" (vs model)" if mode == "model" else ""),
+                        f"{spp} spp x {lobe} lobe",
+                        took,
+                        e,
+                    )
+                )
                 if mode == "model" and (spp, lobe) == (16, 16):
-                    verdicts.append(f"| {name} | OSL moment model, two spheres, 256², 16 spp x 16 lobe | "
-                                    f"{took:.1f} s (first render {first:.1f} s) | target 10 s | "
-                                    f"{'met' if took <= 10 else 'missed'} |")
-    out = ["### Preview: render time against error (256 x 256, two spheres)", "",
-           f"Environment: Blender's `{ENV}` HDRI (1024 x 512; small lights up to 1000x its mean). Original and",
-           "edited (model-mode edit: variance x 2, strength 0.8) side by side, D = "
-           f"{layout.diameter} px each. Errors against the ground truth over the {int(mask.sum())} pixels",
-           "wholly inside a sphere: per-pixel relative RMSE, and in brackets RMSE / RMS. OSL model mode is",
-           "measured against the numpy reference of the model itself (what it is meant to show).", "",
-           "| material | path | setting | time | rel. RMSE (RMSE/RMS) |", "|---|---|---|---|---|"]
+                    verdicts.append(
+                        f"| {name} | OSL moment model, two spheres, 256², 16 spp x 16 lobe | "
+                        f"{took:.1f} s (first render {first:.1f} s) | target 10 s | "
+                        f"{'met' if took <= 10 else 'missed'} |"
+                    )
+    out = [
+        "### Preview: render time against error (256 x 256, two spheres)",
+        "",
+        f"Environment: Blender's `{ENV}` HDRI (1024 x 512; small lights up to 1000x its mean). Original and",
+        "edited (model-mode edit: variance x 2, strength 0.8) side by side, D = "
+        f"{layout.diameter} px each. Errors against the ground truth over the {int(mask.sum())} pixels",
+        "wholly inside a sphere: per-pixel relative RMSE, and in brackets RMSE / RMS. OSL model mode is",
+        "measured against the numpy reference of the model itself (what it is meant to show).",
+        "",
+        "| material | path | setting | time | rel. RMSE (RMSE/RMS) |",
+        "|---|---|---|---|---|",
+    ]
     for name, path, setting, took, e in rows:
         t = f"{took * 1e3:.0f} ms" if took < 1 else f"{took:.2f} s"
         out.append(f"| {name} | {path} | {setting} | {t} | {e[0]:.2%} ({e[1]:.2%}) |")
-    out += ["", "Targets:", "", "| material | reference | fastest-enough bake (≤ 1/10 of its time) | error ratio | |",
-            "|---|---|---|---|---|"]
+    out += [
+        "",
+        "Targets:",
+        "",
+        "| material | reference | fastest-enough bake (≤ 1/10 of its time) | error ratio | |",
+        "|---|---|---|---|---|",
+    ]
     out += [v for v in verdicts if "spp:" in v]
     out += ["", "| material | what | time | target | |", "|---|---|---|---|---|"]
     out += [v for v in verdicts if "OSL moment model" in v]

@@ -110,8 +110,15 @@ def cmd_profiles(args):
             raise InputError(f"{args.plot}: --plot and --out name the same file; choose two names")
     table = read_table(args.file)
     views = default_views(args.elevations, args.max_elevation)
-    prof = compute_profiles(table, views, max_order=args.max_order, split=not args.no_split,
-                            interp=args.interp, floor=args.floor, progress=_progress("building slice rules (once)"))
+    prof = compute_profiles(
+        table,
+        views,
+        max_order=args.max_order,
+        split=not args.no_split,
+        interp=args.interp,
+        floor=args.floor,
+        progress=_progress("building slice rules (once)"),
+    )
     write_json_atomic(prof.to_json(), args.out)
     print(f"wrote {args.out}")
     if args.plot:
@@ -141,8 +148,10 @@ def cmd_fit(args):
         slope = "—" if f["mu_slope"] is None else f"{f['mu_slope']:+.4f}"
         s2 = "—" if f["sigma2"] is None else f"{f['sigma2']:.4f}"
         flag = "  (outside the paper's model)" if f["outside_model"] else ""
-        print(f"{n}: alpha_b {f['alpha_b']:.4g}, knots {math.degrees(f['theta0']):.1f}°-"
-              f"{math.degrees(f['theta1']):.1f}°, mu~ {slope}, sigma2~ {s2}{flag}")
+        print(
+            f"{n}: alpha_b {f['alpha_b']:.4g}, knots {math.degrees(f['theta0']):.1f}°-"
+            f"{math.degrees(f['theta1']):.1f}°, mu~ {slope}, sigma2~ {s2}{flag}"
+        )
     if result.get("correlation", {}).get("a") is not None:
         c = result["correlation"]
         print(f"correlation: sigma2 = {c['a']:.4f} mu^2 {c['b']:+.4f} mu {c['c']:+.4f} (RMSE {c['rmse']:.3g})")
@@ -155,8 +164,14 @@ def cmd_analyze(args):
 
     if os.path.lexists(args.out) and not os.path.isdir(args.out):
         raise InputError(f"{args.out}: exists and is not a folder; --out names the output folder")
-    problems = analyze(args.inputs, args.out, workers=args.jobs, progress=_progress("analysing", always=True),
-                       plots=not args.no_plots, floor=args.floor)
+    problems = analyze(
+        args.inputs,
+        args.out,
+        workers=args.jobs,
+        progress=_progress("analysing", always=True),
+        plots=not args.no_plots,
+        floor=args.floor,
+    )
     for p in problems:
         print(f"error: {p}", file=sys.stderr)
     return 2 if problems else 0
@@ -190,8 +205,14 @@ def cmd_edit(args):
     _guard(args.out, args.file)
     table = read_table(args.file)
     colour = args.alpha or (1.0, 1.0, 1.0)
-    targets = EditTargets(strength=args.alpha_scale if args.alpha_scale is not None else 1.0, colour=colour,
-                          grazing_boost=args.grazing_boost, mu_slope=args.mu, sigma2=args.sigma2, mode=args.mode)
+    targets = EditTargets(
+        strength=args.alpha_scale if args.alpha_scale is not None else 1.0,
+        colour=colour,
+        grazing_boost=args.grazing_boost,
+        mu_slope=args.mu,
+        sigma2=args.sigma2,
+        mode=args.mode,
+    )
     bar, shown = _progress("edit: synthesis"), [0, 0]
 
     def on_round(done, total):
@@ -216,16 +237,21 @@ def cmd_edit(args):
     print("largest directional albedo (r, g, b): " + ", ".join(f"{v:.4f}" for v in res.max_albedo))
     if res.region is not None:
         lo, hi = res.region._range_at(res.target_sigma2)
-        print(f"reachable: variance {res.region.sigma2_min:.4g} .. {res.region.sigma2_max:.4g}; "
-              f"mean slope {lo:+.3f} .. {hi:+.3f} at variance {res.target_sigma2:.4g}"
-              + (f" (request {res.requested[0]:+.4f}, {res.requested[1]:.5f} clamped)" if res.clamped else ""))
+        print(
+            f"reachable: variance {res.region.sigma2_min:.4g} .. {res.region.sigma2_max:.4g}; "
+            f"mean slope {lo:+.3f} .. {hi:+.3f} at variance {res.target_sigma2:.4g}"
+            + (f" (request {res.requested[0]:+.4f}, {res.requested[1]:.5f} clamped)" if res.clamped else "")
+        )
     if res.fidelity is not None:
         # Per view (SPEC §6): every view 5-80 deg holding >= 5 % of the peak energy, re-measured.
         for ch, c in res.fidelity.channels.items():
-            print(f"per view {ch}: energy {100 * c.energy:.1f} %, variance ratio {100 * c.variance_median:.1f} % "
-                  f"median / {100 * c.variance_worst:.1f} % worst, mean {c.mean:.3f} rad, skew/kurt "
-                  f"{'—' if c.shape != c.shape else f'{100 * c.shape:.0f} %'} ({c.views} views"
-                  + (f", {len(c.excluded_deg)} out of reach" if c.excluded_deg else "") + ")")
+            print(
+                f"per view {ch}: energy {100 * c.energy:.1f} %, variance ratio {100 * c.variance_median:.1f} % "
+                f"median / {100 * c.variance_worst:.1f} % worst, mean {c.mean:.3f} rad, skew/kurt "
+                f"{'—' if c.shape != c.shape else f'{100 * c.shape:.0f} %'} ({c.views} views"
+                + (f", {len(c.excluded_deg)} out of reach" if c.excluded_deg else "")
+                + ")"
+            )
     if res.timings:
         print("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in res.timings.items()))
     for w in res.warnings:
@@ -249,27 +275,39 @@ def cmd_bench(args):
 
 
 def _floor_option(parser):
-    parser.add_argument("--floor", choices=("min", "robust"), default="min",
-                        help="diffuse floor kd: min, the paper's minimum over the 45° slice (default); robust, "
-                             "the 5th percentile by area of its cells within 70° of the normal (for measured "
-                             "data, where one grazing cell near 0 sets the minimum)")
+    parser.add_argument(
+        "--floor",
+        choices=("min", "robust"),
+        default="min",
+        help="diffuse floor kd: min, the paper's minimum over the 45° slice (default); robust, "
+        "the 5th percentile by area of its cells within 70° of the normal (for measured "
+        "data, where one grazing cell near 0 sets the minimum)",
+    )
 
 
 def build_parser():
     from ..core import limits as L
 
-    p = _Parser(prog="python -m addon",
-                                description="BRDF Moments: moment profiles of measured (MERL) BRDFs.")
+    p = _Parser(prog="python -m addon", description="BRDF Moments: moment profiles of measured (MERL) BRDFs.")
     sub = p.add_subparsers(dest="command", required=True)
 
     sp = sub.add_parser("profiles", help="moment profiles of one MERL file, as JSON")
     sp.add_argument("file", help="MERL .binary file; or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
     sp.add_argument("--out", required=True, help="output JSON path")
-    sp.add_argument("--elevations", type=_bounded(L.MAX_ELEVATIONS), default=90,
-                    help=f"number of view elevations (90, at most {L.MAX_ELEVATIONS})")
+    sp.add_argument(
+        "--elevations",
+        type=_bounded(L.MAX_ELEVATIONS),
+        default=90,
+        help=f"number of view elevations (90, at most {L.MAX_ELEVATIONS})",
+    )
     sp.add_argument("--max-elevation", type=_elevation, default=89.0, help="largest elevation in degrees (89)")
-    sp.add_argument("--max-order", type=int, choices=range(L.MAX_ORDER + 1), default=L.MAX_ORDER,
-                    help=f"highest moment order ({L.MAX_ORDER})")
+    sp.add_argument(
+        "--max-order",
+        type=int,
+        choices=range(L.MAX_ORDER + 1),
+        default=L.MAX_ORDER,
+        help=f"highest moment order ({L.MAX_ORDER})",
+    )
     sp.add_argument("--no-split", action="store_true", help="do not remove the diffuse floor kd")
     sp.add_argument("--interp", choices=("nearest", "trilinear"), default="nearest")
     sp.add_argument("--plot", help="also write a PNG of the profiles")
@@ -277,22 +315,37 @@ def build_parser():
     sp.set_defaults(func=cmd_profiles)
 
     sf = sub.add_parser("fit", help="Sec. 3.4 fits of one or more materials, as JSON")
-    sf.add_argument("files", nargs="+", help="MERL .binary files (or profiles JSON written by 'profiles'); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
+    sf.add_argument(
+        "files",
+        nargs="+",
+        help="MERL .binary files (or profiles JSON written by 'profiles'); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)",
+    )
     sf.add_argument("--out", required=True, help="output JSON path")
     _floor_option(sf)
     sf.set_defaults(func=cmd_fit)
 
     sa = sub.add_parser("analyze", help="profiles, fits, plots and a summary table for a set of materials")
-    sa.add_argument("inputs", nargs="+", help="folders of .binary files, or files; a Neural-BRDF weights file or .npy folder means all its materials, FILE:NAME one")
+    sa.add_argument(
+        "inputs",
+        nargs="+",
+        help="folders of .binary files, or files; a Neural-BRDF weights file or .npy folder means all its materials, FILE:NAME one",
+    )
     sa.add_argument("--out", required=True, help="output folder")
-    sa.add_argument("--jobs", type=_bounded(L.MAX_JOBS), default=None,
-                    help=f"worker processes (default: all cores, at most {L.MAX_JOBS})")
+    sa.add_argument(
+        "--jobs",
+        type=_bounded(L.MAX_JOBS),
+        default=None,
+        help=f"worker processes (default: all cores, at most {L.MAX_JOBS})",
+    )
     sa.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     _floor_option(sa)
     sa.set_defaults(func=cmd_analyze)
 
     se = sub.add_parser("edit", help="re-synthesize a MERL file from moment sliders")
-    se.add_argument("file", help="input MERL .binary file (never modified); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
+    se.add_argument(
+        "file",
+        help="input MERL .binary file (never modified); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)",
+    )
     se.add_argument("--out", required=True, help="output MERL .binary path (must differ from the input)")
     energy = se.add_mutually_exclusive_group()
     energy.add_argument("--alpha-scale", type=_finite, help="scale the energy by S")
@@ -305,28 +358,55 @@ def build_parser():
     se.set_defaults(func=cmd_edit)
 
     sr = sub.add_parser("render", help="original (and edited) spheres rendered by Cycles (needs the bpy module)")
-    sr.add_argument("file", help="MERL .binary file (the original); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)")
+    sr.add_argument(
+        "file", help="MERL .binary file (the original); or a Neural-BRDF network, FILE:NAME (.npz, .h5, folder of .npy)"
+    )
     sr.add_argument("--edited", help="edited MERL .binary file, shown to the right")
     sr.add_argument("--env", help="bundled HDRI name (default studio) or an .exr/.hdr path")
-    sr.add_argument("--path", choices=("auto", "osl", "baked"), default="auto",
-                    help="osl (Cycles with OSL), baked (numpy radiance, any engine) or auto")
-    sr.add_argument("--mode", choices=("tabulated", "model"), default="tabulated",
-                    help="OSL mode: the table itself, or its fitted moment model")
-    sr.add_argument("--size", type=_bounded(L.MAX_RENDER_SIZE), default=256,
-                    help=f"image width and height in pixels (256, at most {L.MAX_RENDER_SIZE})")
-    sr.add_argument("--samples", type=_bounded(L.MAX_SAMPLES), default=16,
-                    help=f"Cycles samples per pixel (16, at most {L.MAX_SAMPLES})")
-    sr.add_argument("--lobe-samples", type=_bounded(L.MAX_LOBE_SAMPLES), default=16,
-                    help=f"OSL directions per shading point (16, at most {L.MAX_LOBE_SAMPLES})")
-    sr.add_argument("--bake-samples", type=_bounded(L.MAX_BAKE_SAMPLES), default=64,
-                    help=f"baked path directions per texel (64, at most {L.MAX_BAKE_SAMPLES})")
+    sr.add_argument(
+        "--path",
+        choices=("auto", "osl", "baked"),
+        default="auto",
+        help="osl (Cycles with OSL), baked (numpy radiance, any engine) or auto",
+    )
+    sr.add_argument(
+        "--mode",
+        choices=("tabulated", "model"),
+        default="tabulated",
+        help="OSL mode: the table itself, or its fitted moment model",
+    )
+    sr.add_argument(
+        "--size",
+        type=_bounded(L.MAX_RENDER_SIZE),
+        default=256,
+        help=f"image width and height in pixels (256, at most {L.MAX_RENDER_SIZE})",
+    )
+    sr.add_argument(
+        "--samples",
+        type=_bounded(L.MAX_SAMPLES),
+        default=16,
+        help=f"Cycles samples per pixel (16, at most {L.MAX_SAMPLES})",
+    )
+    sr.add_argument(
+        "--lobe-samples",
+        type=_bounded(L.MAX_LOBE_SAMPLES),
+        default=16,
+        help=f"OSL directions per shading point (16, at most {L.MAX_LOBE_SAMPLES})",
+    )
+    sr.add_argument(
+        "--bake-samples",
+        type=_bounded(L.MAX_BAKE_SAMPLES),
+        default=64,
+        help=f"baked path directions per texel (64, at most {L.MAX_BAKE_SAMPLES})",
+    )
     sr.add_argument("--out", required=True, help="output .png (display-referred) or .exr (linear radiance)")
     sr.set_defaults(func=cmd_render)
 
     sb = sub.add_parser("bench", help="benchmark tables (run time against error)")
     sb.add_argument("--quick", action="store_true", help="fewer repetitions and views")
-    sb.add_argument("--only", nargs="*", help="sections to run (closed, tables, memory, fits, edit, preview, "
-                                              "measured, artist)")
+    sb.add_argument(
+        "--only", nargs="*", help="sections to run (closed, tables, memory, fits, edit, preview, measured, artist)"
+    )
     sb.set_defaults(func=cmd_bench)
     return p
 

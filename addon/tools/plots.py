@@ -36,8 +36,12 @@ def plot_profiles(prof, path, title=None):
         ("mean", [("mu_theta", "-"), ("mu_phi", ":")], "mean μθ (solid), μφ (dotted)", "rad"),
         ("var", [("sigma_tt", "-"), ("sigma_pp", "--")], "variance σθ² (solid), σφ² (dashed)", "rad²"),
         ("skew", [("skew_30", "-"), ("skew_12", "--")], "co-skewness γ30 (solid), γ12 (dashed)", "standardized"),
-        ("kurt", [("kurt_40", "-"), ("kurt_22", "--"), ("kurt_04", ":")],
-         "excess co-kurtosis γ40 (solid), γ22 (dashed), γ04 (dotted)", "standardized"),
+        (
+            "kurt",
+            [("kurt_40", "-"), ("kurt_22", "--"), ("kurt_04", ":")],
+            "excess co-kurtosis γ40 (solid), γ22 (dashed), γ04 (dotted)",
+            "standardized",
+        ),
     ]
     for ax, (_, series, label, unit) in zip(axes.flat, panels):
         drawn = False
@@ -45,14 +49,20 @@ def plot_profiles(prof, path, title=None):
             for key, style in series:
                 if key not in prof[ch]:
                     continue
-                ax.plot(deg, prof[ch][key], style, color=colour, lw=1.4 if ch == "avg" else 1.0,
-                        label=name if style == "-" else None)
+                ax.plot(
+                    deg,
+                    prof[ch][key],
+                    style,
+                    color=colour,
+                    lw=1.4 if ch == "avg" else 1.0,
+                    label=name if style == "-" else None,
+                )
                 drawn = True
         if series[0][0] == "mu_theta" and drawn:
             ax.plot(deg, -prof.theta_o, color="#999999", lw=0.8, ls="-.", label="mirror (−θo)")
             ax.plot(deg, 0 * deg, color="#bbbbbb", lw=0.8, ls="-.", label="Lambertian (0)")
         if series[0][0] == "sigma_tt" and drawn:
-            ax.axhline(np.pi ** 2 / 12, color="#bbbbbb", lw=0.8, ls="-.", label="Lambertian π²/12")
+            ax.axhline(np.pi**2 / 12, color="#bbbbbb", lw=0.8, ls="-.", label="Lambertian π²/12")
         ax.set_title(label, fontsize=10)
         ax.set_xlabel("view elevation θo (degrees)")
         ax.set_ylabel(unit)
@@ -65,8 +75,12 @@ def plot_profiles(prof, path, title=None):
     ax = axes.flat[5]
     ax.axis("off")
     kd = ", ".join(f"{v:.4g}" for v in prof.kd)
-    lines = [f"material: {prof.name or '—'}", f"kd (diffuse floor): {kd}" if prof.split else "diffuse split: off",
-             f"views: {len(deg)} from {deg[0]:.0f}° to {deg[-1]:.0f}°", f"interpolation: {prof.interp}"]
+    lines = [
+        f"material: {prof.name or '—'}",
+        f"kd (diffuse floor): {kd}" if prof.split else "diffuse split: off",
+        f"views: {len(deg)} from {deg[0]:.0f}° to {deg[-1]:.0f}°",
+        f"interpolation: {prof.interp}",
+    ]
     ax.text(0.02, 0.95, "\n".join(lines), va="top", family="monospace", fontsize=9, transform=ax.transAxes)
     fig.suptitle(title or f"Moment profiles — {prof.name}", fontsize=12)
     fig.tight_layout()
@@ -76,6 +90,7 @@ def plot_profiles(prof, path, title=None):
 
 
 # --- sets of materials (paper Figures 4-7) -------------------------------------------------
+
 
 def material_colours(names):
     """One colour per material, stable across every plot of a set (sorted-name order)."""
@@ -91,11 +106,22 @@ ORDER_PANELS = {
     0: ("Order 0: energy", [("alpha", "α")], "α"),
     1: ("Order 1: mean", [("mu_theta", "μθ"), ("mu_phi", "μφ (near zero)")], "rad"),
     2: ("Order 2: covariance", [("sigma_tt", "σθ²"), ("sigma_pp", "σφ²"), ("sigma_tp", "Σ11 (near zero)")], "rad²"),
-    3: ("Order 3: co-skewness", [("skew_30", "γ30"), ("skew_12", "γ12"), ("skew_21", "γ21 (near zero)"),
-                                 ("skew_03", "γ03 (near zero)")], "standardized"),
-    4: ("Order 4: excess co-kurtosis", [("kurt_40", "γ40"), ("kurt_22", "γ22"), ("kurt_04", "γ04"),
-                                        ("kurt_31", "γ31 (near zero)"), ("kurt_13", "γ13 (near zero)")],
-        "standardized"),
+    3: (
+        "Order 3: co-skewness",
+        [("skew_30", "γ30"), ("skew_12", "γ12"), ("skew_21", "γ21 (near zero)"), ("skew_03", "γ03 (near zero)")],
+        "standardized",
+    ),
+    4: (
+        "Order 4: excess co-kurtosis",
+        [
+            ("kurt_40", "γ40"),
+            ("kurt_22", "γ22"),
+            ("kurt_04", "γ04"),
+            ("kurt_31", "γ31 (near zero)"),
+            ("kurt_13", "γ13 (near zero)"),
+        ],
+        "standardized",
+    ),
 }
 
 
@@ -111,8 +137,14 @@ def _legend_outside(fig, colours):
 
     names = sorted(colours)
     handles = [Line2D([], [], color=colours[n], lw=2) for n in names]
-    fig.legend(handles, names, loc="center right", fontsize=7 if len(names) <= LEGEND_ROWS else 6,
-               ncol=_legend_columns(len(names)), frameon=False)
+    fig.legend(
+        handles,
+        names,
+        loc="center right",
+        fontsize=7 if len(names) <= LEGEND_ROWS else 6,
+        ncol=_legend_columns(len(names)),
+        frameon=False,
+    )
 
 
 def _set_legend(fig, ax, n, ncol=1):
@@ -125,8 +157,7 @@ def _set_legend(fig, ax, n, ncol=1):
     cols = -(-(n + 3) // 34)
     w, h = fig.get_size_inches()
     fig.set_size_inches(w + 2.1 * cols, h)
-    ax.legend(fontsize=6, ncol=cols, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False,
-              borderaxespad=0.0)
+    ax.legend(fontsize=6, ncol=cols, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0.0)
     fig.tight_layout()
 
 
@@ -167,7 +198,11 @@ def plot_fits(profiles, fits, path, channel="avg"):
     colours = material_colours(list(profiles))
     names = [n for n in sorted(profiles) if fits[n]["energy"]["rmse"] is not None]
     plt, fig, axes = _figure(3, 3, (15, 11))
-    rows = [("energy α", "energy", "α"), ("mean μθ", "mean", "rad"), ("average variance (σθ²+σφ²)/2", "variance", "rad²")]
+    rows = [
+        ("energy α", "energy", "α"),
+        ("mean μθ", "mean", "rad"),
+        ("average variance (σθ²+σφ²)/2", "variance", "rad²"),
+    ]
 
     def measured(name, row):
         p = profiles[name][channel]
@@ -244,14 +279,30 @@ def plot_energy_spline(profiles, fits, joint, path, channel="avg"):
         if f["energy"]["rmse"] is None or not f["alpha_b"]:
             continue
         p = profiles[name]
-        ax.plot(np.degrees(p.theta_o), np.asarray(p[channel]["alpha"]) / f["alpha_b"], ".", ms=2,
-                color=colours[name], alpha=0.5)
-        ax.plot(np.degrees(t), energy_curve(t, f["alpha_b"], f["theta0"], f["theta1"], f["alpha1"], f["m1"])
-                / f["alpha_b"], color=colours[name], lw=1.2, label=name)
+        ax.plot(
+            np.degrees(p.theta_o),
+            np.asarray(p[channel]["alpha"]) / f["alpha_b"],
+            ".",
+            ms=2,
+            color=colours[name],
+            alpha=0.5,
+        )
+        ax.plot(
+            np.degrees(t),
+            energy_curve(t, f["alpha_b"], f["theta0"], f["theta1"], f["alpha1"], f["m1"]) / f["alpha_b"],
+            color=colours[name],
+            lw=1.2,
+            label=name,
+        )
     if joint:
         for k, ls in (("theta0", "--"), ("theta1", ":")):
-            ax.axvline(np.degrees(joint[k]), color="k", ls=ls, lw=1,
-                       label=f"joint {'θ0' if k == 'theta0' else 'θ1'} = {np.degrees(joint[k]):.1f}°")
+            ax.axvline(
+                np.degrees(joint[k]),
+                color="k",
+                ls=ls,
+                lw=1,
+                label=f"joint {'θ0' if k == 'theta0' else 'θ1'} = {np.degrees(joint[k]):.1f}°",
+            )
     ax.set_xlabel("view elevation θo (degrees)")
     ax.set_ylabel("α / α̃b (relative energy)")
     ax.set_title("Energy: constant base α̃b, Hermite boost from θ0 (slope 0) to θ1, then a line")
@@ -278,8 +329,13 @@ def plot_correlation(fits, correlation, path):
     if correlation and correlation.get("a") is not None:
         mu = np.linspace(-1, 0, 200)
         a = correlation["a"]
-        ax.plot(mu, correlation_curve(mu, a), "k-", lw=1.4,
-                label=f"σ̃² = {a:.3f} μ̃² {correlation['b']:+.3f} μ̃ + π²/12  (RMSE {correlation['rmse']:.3g})")
+        ax.plot(
+            mu,
+            correlation_curve(mu, a),
+            "k-",
+            lw=1.4,
+            label=f"σ̃² = {a:.3f} μ̃² {correlation['b']:+.3f} μ̃ + π²/12  (RMSE {correlation['rmse']:.3g})",
+        )
     ax.plot([-1, 0], [0, LAMBERT_VARIANCE], "ks", ms=7, mfc="none", label="mirror (−1, 0), Lambertian (0, π²/12)")
     ax.set_xlabel("mean slope μ̃ (−1 mirror … 0 Lambertian)")
     ax.set_ylabel("average variance σ̃² (rad²)")

@@ -41,16 +41,23 @@ def run_in_child(args, input_error):
     _preflight(args, input_error)
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     scratch = tempfile.mkdtemp(prefix="brdfm-render-")  # Blender's temporary folder, removed below
-    env = dict(os.environ, BRDF_MOMENTS_RENDER_CHILD="1", TMPDIR=scratch, TEMP=scratch, TMP=scratch,
-               PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))
+    env = dict(
+        os.environ,
+        BRDF_MOMENTS_RENDER_CHILD="1",
+        TMPDIR=scratch,
+        TEMP=scratch,
+        TMP=scratch,
+        PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])),
+    )
     child = None
     try:
         child = subprocess.Popen([sys.executable, "-m", "addon", *args.argv], env=env)
         code = child.wait()
         if code < 0:  # killed by a signal (Blender itself crashed): one line, and nothing left
             sweep_pending(only_pid=child.pid)
-            raise input_error(f"{args.file}: the render stopped unexpectedly (Blender died of signal {-code}); "
-                              f"nothing was written")
+            raise input_error(
+                f"{args.file}: the render stopped unexpectedly (Blender died of signal {-code}); nothing was written"
+            )
         return code
     except KeyboardInterrupt:
         if child is not None:
@@ -89,13 +96,24 @@ def run(args, input_error):
     scene = bpy.context.scene
     try:
         with preview.quiet_stdout():
-            info = preview.build_preview(scene, original, edited, path=args.path, mode=args.mode, env=env,
-                                         size=args.size, samples=args.samples, lobe_samples=args.lobe_samples,
-                                         bake_samples=args.bake_samples)
+            info = preview.build_preview(
+                scene,
+                original,
+                edited,
+                path=args.path,
+                mode=args.mode,
+                env=env,
+                size=args.size,
+                samples=args.samples,
+                lobe_samples=args.lobe_samples,
+                bake_samples=args.bake_samples,
+            )
         preview.render_still(scene, out, quiet=True)
     except preview.OSLUnavailable as exc:
         raise input_error(f"--path osl: {exc}") from None
     how = f"OSL, {info.mode} mode" if info.path == "osl" else "baked"
-    print(f"wrote {out} ({how}, {info.layout.width}x{info.layout.height}, environment "
-          f"{os.path.basename(info.environment)}, {time.perf_counter() - t0:.1f} s)")
+    print(
+        f"wrote {out} ({how}, {info.layout.width}x{info.layout.height}, environment "
+        f"{os.path.basename(info.environment)}, {time.perf_counter() - t0:.1f} s)"
+    )
     return 0

@@ -17,10 +17,13 @@ mat = next(m for m in bpy.data.materials if m.brdf_moments.analysed)
 state = mat.brdf_moments
 # Apply put the edit into the material itself (no OSL here: the Principled approximation)
 group_node = mat.node_tree.nodes.get("BRDF Moments edit")
-artist = {"used": state.artist_shader_used, "label": group_node.label if group_node else "",
-          "group": sorted(n.bl_idname for n in group_node.node_tree.nodes) if group_node else [],
-          "linked": bool(group_node and group_node.outputs[0].is_linked),
-          "principled": json.loads(state.principled_data) if state.principled_data else None}
+artist = {
+    "used": state.artist_shader_used,
+    "label": group_node.label if group_node else "",
+    "group": sorted(n.bl_idname for n in group_node.node_tree.nodes) if group_node else [],
+    "linked": bool(group_node and group_node.outputs[0].is_linked),
+    "principled": json.loads(state.principled_data) if state.principled_data else None,
+}
 ran_restore = sorted(bpy.ops.brdf_moments.restore_material(material=mat.name))
 artist["after_restore"] = sorted(n.name for n in mat.node_tree.nodes)
 before = {"mu_slope": state.fit_mu_slope, "sigma2": state.fit_sigma2}
@@ -36,10 +39,25 @@ bpy.ops.wm.save_as_mainfile(filepath=os.path.join(out, "lane.blend"))
 bpy.ops.wm.open_mainfile(filepath=os.path.join(out, "lane.blend"))
 img = bpy.data.images.get(f"BRDF Moments plot: {name}")
 px = list(img.pixels[:]) if img is not None else []
-reopened = {"plot": img is not None, "plot_size": list(img.size) if img else [],
-            "plot_drawn": sum(1 for v in px[0::4] if abs(v - 0.16) > 0.1) / max(len(px) // 4, 1)}
+reopened = {
+    "plot": img is not None,
+    "plot_size": list(img.size) if img else [],
+    "plot_drawn": sum(1 for v in px[0::4] if abs(v - 0.16) > 0.1) / max(len(px) // 4, 1),
+}
 with open(os.path.join(out, "operators.json"), "w") as fh:
-    json.dump({"material": name, "ran": ran, "fit_before": before, "fit_after": after,
-               "edited_sliders": edited, "reset_sliders": sliders, "artist": artist, "reopened": reopened},
-              fh, indent=1, allow_nan=False)
+    json.dump(
+        {
+            "material": name,
+            "ran": ran,
+            "fit_before": before,
+            "fit_after": after,
+            "edited_sliders": edited,
+            "reset_sliders": sliders,
+            "artist": artist,
+            "reopened": reopened,
+        },
+        fh,
+        indent=1,
+        allow_nan=False,
+    )
 print("lane: operators", ran, flush=True)

@@ -31,7 +31,8 @@ A, B = 1.0, 0.5
 os.makedirs(OUT, exist_ok=True)
 sky = preview.write_environment(
     Environment.from_function(lambda d: np.repeat(A + B * d[:, 2:3], 3, axis=1), 256, 128).pixels,
-    os.path.join(OUT, "sky.exr"))
+    os.path.join(OUT, "sky.exr"),
+)
 table = read_merl(samples.sample_path("lambertian"))
 # Profiles at a few views are enough for the sampling lobe (a loaded material has them all);
 # they keep a cold operator cache from costing a minute here.
@@ -51,9 +52,16 @@ jj, ii = np.nonzero(mask)
 _, z = texel_positions(lay.diameter, ii - lay.lefts[0], jj - lay.top, 0.5, 0.5)
 want = 0.8 * (A + 2.0 * B * z / 3.0)
 rel = pix[mask][:, 0] / want - 1.0
-result = {"blender": bpy.app.version_string, "numpy": np.__version__, "path": info.path, "size": [w, h],
-          "pixels": int(mask.sum()), "max_rel_err": float(np.abs(rel).max()), "mean_rel_err": float(rel.mean()),
-          "baked": info.baked}
+result = {
+    "blender": bpy.app.version_string,
+    "numpy": np.__version__,
+    "path": info.path,
+    "size": [w, h],
+    "pixels": int(mask.sum()),
+    "max_rel_err": float(np.abs(rel).max()),
+    "mean_rel_err": float(rel.mean()),
+    "baked": info.baked,
+}
 with open(os.path.join(OUT, "result.json"), "w") as fh:
     json.dump(result, fh)
 print("preview lane:", result, flush=True)

@@ -44,6 +44,7 @@ def log(*args):
 
 # --- the window -------------------------------------------------------------------------------
 
+
 def window():
     return bpy.context.window_manager.windows[0]
 
@@ -115,6 +116,7 @@ bpy.utils.register_class(WINDOWED_OT_probe)
 
 # --- the material -----------------------------------------------------------------------------
 
+
 def digest(text):
     return hashlib.sha1(text.encode()).hexdigest()[:16] if text else ""
 
@@ -122,13 +124,23 @@ def digest(text):
 def snapshot():
     mat = bpy.data.materials.get(MAT)
     s = mat.brdf_moments
-    return {"source_path": s.source_path, "analysed": s.analysed, "fit_mu_slope": s.fit_mu_slope,
-            "fit_sigma2": s.fit_sigma2, "mu_slope": s.mu_slope, "sigma2": s.sigma2,
-            "profiles": digest(s.profiles_data), "edited_path": s.edited_path,
-            "edited_profiles": digest(s.edited_profiles_data), "achieved_mu_slope": s.achieved_mu_slope,
-            "achieved_sigma2": s.achieved_sigma2, "edit_warnings": s.edit_warnings,
-            "preview_material": s.preview_material, "scenes": sorted(sc.name for sc in bpy.data.scenes),
-            "window_scene": window().scene.name}
+    return {
+        "source_path": s.source_path,
+        "analysed": s.analysed,
+        "fit_mu_slope": s.fit_mu_slope,
+        "fit_sigma2": s.fit_sigma2,
+        "mu_slope": s.mu_slope,
+        "sigma2": s.sigma2,
+        "profiles": digest(s.profiles_data),
+        "edited_path": s.edited_path,
+        "edited_profiles": digest(s.edited_profiles_data),
+        "achieved_mu_slope": s.achieved_mu_slope,
+        "achieved_sigma2": s.achieved_sigma2,
+        "edit_warnings": s.edit_warnings,
+        "preview_material": s.preview_material,
+        "scenes": sorted(sc.name for sc in bpy.data.scenes),
+        "window_scene": window().scene.name,
+    }
 
 
 def record(name, **extra):
@@ -158,6 +170,7 @@ def last_job():
 
 # --- the artist's session ---------------------------------------------------------------------
 
+
 def session():
     yield 1.0
     key_over("VIEW_3D", "Escape")  # closes the first-run splash
@@ -174,8 +187,7 @@ def session():
     result["idle"] = {"start": t0, "end": time.monotonic(), "loadavg": os.getloadavg()}
 
     # A missing file: one line in the report, nothing changed, no traceback.
-    status, message = run_op(bpy.ops.brdf_moments.load_merl, filepath=os.path.join(OUT, "missing.binary"),
-                             material=MAT)
+    status, message = run_op(bpy.ops.brdf_moments.load_merl, filepath=os.path.join(OUT, "missing.binary"), material=MAT)
     record("load_missing", status=status, message=message)
 
     # Load: the file browser's execute starts the threaded analysis.
@@ -276,8 +288,9 @@ def session():
     yield from wait_jobs()
     redraw()
     yield 0.8
-    record("build_preview", status=status, message=message, call_seconds=call, job=last_job(),
-           shot=screenshot("preview"))
+    record(
+        "build_preview", status=status, message=message, call_seconds=call, job=last_job(), shot=screenshot("preview")
+    )
 
     # Save, then reopen (the driver's timers are persistent).
     blend = os.path.join(OUT, "session.blend")
@@ -347,8 +360,15 @@ def finish():
     result["loadavg_end"] = os.getloadavg()
     for job in jobs().HISTORY:
         gap, n = largest_gap(job["start"], job["end"])
-        result["jobs"].append({**job, "seconds": job["end"] - job["start"], "ticks": n, "largest_gap": gap,
-                               "largest_gil_gap": largest_gap(job["start"], job["end"], probe_ticks)[0]})
+        result["jobs"].append(
+            {
+                **job,
+                "seconds": job["end"] - job["start"],
+                "ticks": n,
+                "largest_gap": gap,
+                "largest_gil_gap": largest_gap(job["start"], job["end"], probe_ticks)[0],
+            }
+        )
     with open(os.path.join(OUT, "windowed.json"), "w") as fh:
         json.dump(result, fh, indent=1)
     log("done", len(result["steps"]), "steps,", len(result["errors"]), "errors")

@@ -28,12 +28,39 @@ spheres (content cache); ``render_still(scene, "out.png" | "out.exr", quiet=Fals
 Errors: ``ValueError`` (bad input, names the fault), ``MerlError``, ``OSLUnavailable``.
 """
 
-from .build import (PreviewInfo, bake_cache, build_preview, build_row, model_params, quiet_stdout, refresh_baked,
-                    render_still, set_source, source_of, update_model)
+from .build import (
+    PreviewInfo,
+    bake_cache,
+    build_preview,
+    build_row,
+    model_params,
+    quiet_stdout,
+    refresh_baked,
+    render_still,
+    set_source,
+    source_of,
+    update_model,
+)
 from .environment import bundled_environments, load_environment, resolve_environment, write_environment
 from .osl import OSLUnavailable, compile_shader, osl_available
 
-__all__ = ["PreviewInfo", "bake_cache", "build_preview", "build_row", "model_params", "quiet_stdout", "refresh_baked",
-           "render_still",
-           "set_source", "source_of", "update_model", "bundled_environments", "load_environment",
-           "resolve_environment", "write_environment", "OSLUnavailable", "compile_shader", "osl_available"]
+__all__ = [
+    "PreviewInfo",
+    "bake_cache",
+    "build_preview",
+    "build_row",
+    "model_params",
+    "quiet_stdout",
+    "refresh_baked",
+    "render_still",
+    "set_source",
+    "source_of",
+    "update_model",
+    "bundled_environments",
+    "load_environment",
+    "resolve_environment",
+    "write_environment",
+    "OSLUnavailable",
+    "compile_shader",
+    "osl_available",
+]

@@ -26,19 +26,19 @@ SEED = 0
 
 @dataclass
 class PreviewInfo:
-    path: str                       # 'osl' or 'baked' (what 'auto' resolved to)
-    mode: str                       # OSL mode ('model' or 'tabulated'); 'tabulated' for baked
-    layout: object                  # core.render.Layout
-    materials: list                 # material names, left to right
-    environment: str                # HDRI path
-    baked: list = field(default_factory=list)     # materials (re)baked by this call
+    path: str  # 'osl' or 'baked' (what 'auto' resolved to)
+    mode: str  # OSL mode ('model' or 'tabulated'); 'tabulated' for baked
+    layout: object  # core.render.Layout
+    materials: list  # material names, left to right
+    environment: str  # HDRI path
+    baked: list = field(default_factory=list)  # materials (re)baked by this call
     notes: list = field(default_factory=list)
 
 
 # --- sources ---------------------------------------------------------------------------------
 
-_SOURCES = {}                 # material name -> MerlTable | MomentParams (live, not saved)
-_BRDFS = OrderedDict()        # content id -> TableBRDF / ModelBRDF / fit params (a few recent)
+_SOURCES = {}  # material name -> MerlTable | MomentParams (live, not saved)
+_BRDFS = OrderedDict()  # content id -> TableBRDF / ModelBRDF / fit params (a few recent)
 CACHE = None
 
 
@@ -118,6 +118,7 @@ def source_of(material):
 
 # --- materials --------------------------------------------------------------------------------
 
+
 def _fresh_tree(mat):
     nt = node_tree(mat)
     nt.nodes.clear()
@@ -169,11 +170,17 @@ def update_model(material, params, samples=None):
         raise ValueError(f"{material.name}: not an OSL moment-model preview material")
     set_source(material, params)
     ins = node.inputs
-    osl_path.set_model_inputs(node, params, samples if samples is not None else ins["Samples"].default_value,
-                              ins["Environment"].default_value, ins["Strength"].default_value)
+    osl_path.set_model_inputs(
+        node,
+        params,
+        samples if samples is not None else ins["Samples"].default_value,
+        ins["Environment"].default_value,
+        ins["Strength"].default_value,
+    )
 
 
 # --- the baked path ----------------------------------------------------------------------------
+
 
 def _visible(obj):
     return not obj.hide_render and all(not c.hide_render for c in obj.users_collection)
@@ -240,9 +247,9 @@ def _write_bake_image(mat, rgb):
         img = None
     if img is None:
         img = bpy.data.images.new(name, d, d, alpha=True, float_buffer=True)
-        img.colorspace_settings.name = "Non-Color"   # before the pixels: they are linear radiance
+        img.colorspace_settings.name = "Non-Color"  # before the pixels: they are linear radiance
     rgba = np.ones((d, d, 4), np.float32)
-    rgba[..., :3] = rgb[::-1]                       # bake rows go top-down, Blender's bottom-up
+    rgba[..., :3] = rgb[::-1]  # bake rows go top-down, Blender's bottom-up
     img.pixels.foreach_set(rgba.ravel())
     img.update()
     node = mat.node_tree.nodes.get("BRDFM Bake")
@@ -252,6 +259,7 @@ def _write_bake_image(mat, rgb):
 
 
 # --- building ---------------------------------------------------------------------------------
+
 
 def resolve_path(path):
     if path not in PATHS:
@@ -265,8 +273,22 @@ def resolve_path(path):
     return path
 
 
-def build_row(scene, sources, *, labels=None, path="auto", mode="model", env=None, size=256, samples=16,
-              lobe_samples=16, bake_samples=64, engine="CYCLES", profiles=None, osl_filter=1.0) -> PreviewInfo:
+def build_row(
+    scene,
+    sources,
+    *,
+    labels=None,
+    path="auto",
+    mode="model",
+    env=None,
+    size=256,
+    samples=16,
+    lobe_samples=16,
+    bake_samples=64,
+    engine="CYCLES",
+    profiles=None,
+    osl_filter=1.0,
+) -> PreviewInfo:
     """A row of spheres, one per source (MERL path, MerlTable or MomentParams), left to right.
 
     ``osl_filter``: 1 looks the map up prefiltered to each OSL sample's footprint (less noise,
@@ -295,16 +317,30 @@ def build_row(scene, sources, *, labels=None, path="auto", mode="model", env=Non
         if path == "osl":
             node = osl_material(mat, mode)
             if mode == "model":
-                osl_path.set_model_inputs(node, model_params(src, prof), lobe_samples, env_path, pixel_samples=samples,
-                                          filter_scale=osl_filter)
+                osl_path.set_model_inputs(
+                    node,
+                    model_params(src, prof),
+                    lobe_samples,
+                    env_path,
+                    pixel_samples=samples,
+                    filter_scale=osl_filter,
+                )
             else:
                 if isinstance(src, MomentParams):
                     raise ValueError(f"{label}: tabulated mode needs a MERL table, not moment parameters")
                 brdf = brdf_of(src, prof)
                 fit = model_params(src, prof)
-                osl_path.set_table_inputs(node, osl_path.write_table_texture(brdf), fit.mu_slope, fit.sigma2,
-                                          brdf.kd, lobe_samples, env_path, pixel_samples=samples,
-                                          filter_scale=osl_filter)
+                osl_path.set_table_inputs(
+                    node,
+                    osl_path.write_table_texture(brdf),
+                    fit.mu_slope,
+                    fit.sigma2,
+                    brdf.kd,
+                    lobe_samples,
+                    env_path,
+                    pixel_samples=samples,
+                    filter_scale=osl_filter,
+                )
         else:
             if not isinstance(src, MomentParams):
                 brdf_of(src, prof)
@@ -356,8 +392,13 @@ def render_still(scene, out_path, quiet=False):
         raise ValueError(f"{out_path}: output must end in .png or .exr")
     scene.render.use_file_extension = False
     if scene.get("brdfm_env") and any(
-            (o.material_slots and o.material_slots[0].material is not None
-             and o.material_slots[0].material.get("brdfm_path") == "baked") for o in preview_spheres(scene)):
+        (
+            o.material_slots
+            and o.material_slots[0].material is not None
+            and o.material_slots[0].material.get("brdfm_path") == "baked"
+        )
+        for o in preview_spheres(scene)
+    ):
         refresh_baked(scene)
     with atomic_path(out_path, ext) as tmp:
         scene.render.filepath = tmp

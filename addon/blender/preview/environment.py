@@ -28,7 +28,7 @@ def world_folders():
             out.append(p)
     except (TypeError, ValueError):
         pass
-    here = os.path.dirname(bpy.__file__)                       # .../<ver>/scripts/modules/bpy
+    here = os.path.dirname(bpy.__file__)  # .../<ver>/scripts/modules/bpy
     out += glob.glob(os.path.join(here, "..", "..", "..", "datafiles", "studiolights", "world"))
     out += glob.glob("/usr/share/blender/*/datafiles/studiolights/world")
     out.append("/usr/share/blender/datafiles/studiolights/world")
@@ -90,7 +90,7 @@ def load_environment(path) -> Environment:
             raise ValueError(f"{path}: cannot read the image (size {w}x{h})")
         buf = np.empty(w * h * img.channels, np.float32)
         img.pixels.foreach_get(buf)
-        pix = buf.reshape(h, w, img.channels)[::-1, :, :3]      # Blender rows go bottom-up
+        pix = buf.reshape(h, w, img.channels)[::-1, :, :3]  # Blender rows go bottom-up
         if img.channels < 3:
             pix = np.repeat(buf.reshape(h, w, img.channels)[::-1, :, :1], 3, axis=2)
         check_radiance(pix, path)
@@ -98,7 +98,7 @@ def load_environment(path) -> Environment:
     finally:
         if img.users == 0:
             bpy.data.images.remove(img)
-    _LOADED.clear()          # one map at a time: they are tens of MB with their caches
+    _LOADED.clear()  # one map at a time: they are tens of MB with their caches
     _LOADED[key] = env
     return env
 

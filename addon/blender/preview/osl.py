@@ -32,8 +32,10 @@ def osl_available() -> tuple:
     import importlib.util
 
     if importlib.util.find_spec("oslquery") is None:
-        return False, ("Cycles cannot import oslquery (with the bpy module, add "
-                       "<bpy>/<version>/python/lib/python3.X/site-packages to sys.path)")
+        return False, (
+            "Cycles cannot import oslquery (with the bpy module, add "
+            "<bpy>/<version>/python/lib/python3.X/site-packages to sys.path)"
+        )
     return True, ""
 
 
@@ -108,8 +110,19 @@ def set_model_inputs(node, params, samples=16, environment="", strength=1.0, pix
     ins["Strength"].default_value = float(strength)
 
 
-def set_table_inputs(node, texture_path, mu_slope, sigma2, kd, samples=16, environment="", strength=1.0,
-                     cosine_share=0.15, pixel_samples=None, filter_scale=None):
+def set_table_inputs(
+    node,
+    texture_path,
+    mu_slope,
+    sigma2,
+    kd,
+    samples=16,
+    environment="",
+    strength=1.0,
+    cosine_share=0.15,
+    pixel_samples=None,
+    filter_scale=None,
+):
     ins = node.inputs
     if pixel_samples is not None:
         ins["PixelSamples"].default_value = int(pixel_samples)
@@ -132,7 +145,7 @@ def table_texture_pixels(values, kd):
     from ...core.merl import RES_PD, RES_TD, RES_TH
 
     spec = np.maximum(np.asarray(values, np.float32) - np.asarray(kd, np.float32)[None, :], 0.0)
-    cube = spec.reshape(RES_TH, RES_TD // 10, 10, RES_PD, 3)          # (ith, itd // 10, itd % 10, ipd, c)
+    cube = spec.reshape(RES_TH, RES_TD // 10, 10, RES_PD, 3)  # (ith, itd // 10, itd % 10, ipd, c)
     return np.ascontiguousarray(cube.transpose(1, 0, 2, 3, 4).reshape(RES_TH * (RES_TD // 10), 10 * RES_PD, 3))
 
 

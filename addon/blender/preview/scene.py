@@ -72,10 +72,16 @@ def uv_sphere(u_segments, v_segments):
     between), wound counter-clockwise seen from outside (outward normals). Fine facets keep the
     silhouette round; shading uses the exact normal anyway."""
     nu, nv = int(u_segments), int(v_segments)
-    theta = np.arange(1, nv) * (math.pi / nv)                     # the rings, pole to pole
+    theta = np.arange(1, nv) * (math.pi / nv)  # the rings, pole to pole
     phi = np.arange(nu) * (2.0 * math.pi / nu)
-    ring = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
-                     np.repeat(np.cos(theta)[:, None], nu, axis=1)], axis=-1).reshape(-1, 3)
+    ring = np.stack(
+        [
+            np.sin(theta)[:, None] * np.cos(phi),
+            np.sin(theta)[:, None] * np.sin(phi),
+            np.repeat(np.cos(theta)[:, None], nu, axis=1),
+        ],
+        axis=-1,
+    ).reshape(-1, 3)
     verts = np.concatenate([ring, [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]])
     top, bottom = len(ring), len(ring) + 1
 
@@ -106,8 +112,13 @@ def ensure_spheres(scene, layout):
         obj.rotation_euler = (0.0, 0.0, 0.0)
         obj.scale = (1.0, 1.0, 1.0)
         obj.hide_render = False
-        for ray in ("visible_diffuse", "visible_glossy", "visible_transmission", "visible_volume_scatter",
-                    "visible_shadow"):
+        for ray in (
+            "visible_diffuse",
+            "visible_glossy",
+            "visible_transmission",
+            "visible_volume_scatter",
+            "visible_shadow",
+        ):
             if hasattr(obj, ray):
                 setattr(obj, ray, False)
         objs.append(obj)
@@ -120,7 +131,7 @@ def ensure_spheres(scene, layout):
 
 def assign_material(obj, mat):
     if len(obj.data.materials) == 0:
-        obj.data.materials.append(None)   # one slot on the shared mesh; each object links its own
+        obj.data.materials.append(None)  # one slot on the shared mesh; each object links its own
     slot = obj.material_slots[0]
     slot.link = "OBJECT"
     slot.material = mat
@@ -185,4 +196,4 @@ def configure_render(scene, layout, path, samples=16, engine="CYCLES"):
     c.diffuse_bounces = 1 if path == "osl" else 0
     c.glossy_bounces = c.transmission_bounces = c.volume_bounces = c.transparent_max_bounces = 0
     if hasattr(c, "use_light_tree"):
-        c.use_light_tree = False        # one light (the world): a tree only costs build time
+        c.use_light_tree = False  # one light (the world): a tree only costs build time

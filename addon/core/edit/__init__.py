@@ -17,6 +17,19 @@ from .reach import ReachableRegion, reachable_region
 from .solve import EditResult, directional_albedo, edit, scale_to_albedo, synthesize
 from .targets import MIN_SIGMA2, MODES, EditTargets, ViewTargets, resolve_targets, target_energy, view_targets
 
-__all__ = ["MIN_SIGMA2", "MODES", "EditResult", "EditTargets", "ReachableRegion", "ViewTargets", "directional_albedo",
-           "edit", "reachable_region", "resolve_targets", "scale_to_albedo", "synthesize", "target_energy",
-           "view_targets"]
+__all__ = [
+    "MIN_SIGMA2",
+    "MODES",
+    "EditResult",
+    "EditTargets",
+    "ReachableRegion",
+    "ViewTargets",
+    "directional_albedo",
+    "edit",
+    "reachable_region",
+    "resolve_targets",
+    "scale_to_albedo",
+    "synthesize",
+    "target_energy",
+    "view_targets",
+]

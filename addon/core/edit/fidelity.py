@@ -31,24 +31,29 @@ TOLERANCES = {"energy": 0.02, "variance_median": 0.02, "variance_worst": 0.10, "
 @dataclass
 class ChannelFidelity:
     channel: str
-    views: int                  # counted views
-    energy: float               # worst |alpha'/alpha* - 1|
+    views: int  # counted views
+    energy: float  # worst |alpha'/alpha* - 1|
     variance_median: float
     variance_worst: float
-    mean: float                 # worst |mu' - mu*| (rad)
-    shape: float                # worst skew/kurtosis change (nan in model mode)
-    excluded_deg: list = field(default_factory=list)   # unreachable views, not counted
+    mean: float  # worst |mu' - mu*| (rad)
+    shape: float  # worst skew/kurtosis change (nan in model mode)
+    excluded_deg: list = field(default_factory=list)  # unreachable views, not counted
     worst_view_deg: dict = field(default_factory=dict)  # figure -> view (deg) where it is worst
 
     def meets(self, tol=TOLERANCES) -> bool:
-        figures = {"energy": self.energy, "variance_median": self.variance_median,
-                   "variance_worst": self.variance_worst, "mean": self.mean, "shape": self.shape}
+        figures = {
+            "energy": self.energy,
+            "variance_median": self.variance_median,
+            "variance_worst": self.variance_worst,
+            "mean": self.mean,
+            "shape": self.shape,
+        }
         return all(not (v > tol[k]) for k, v in figures.items())  # nan (not measured) passes
 
 
 @dataclass
 class Fidelity:
-    channels: dict              # 'r', 'g', 'b' -> ChannelFidelity
+    channels: dict  # 'r', 'g', 'b' -> ChannelFidelity
     profiles: Profiles
 
     def worst(self, figure: str) -> float:
@@ -91,14 +96,20 @@ def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) ->
     if isinstance(edited, Profiles):
         prof = edited
     else:
-        prof = compute_profiles(edited, original.theta_o, kd=original.kd if original.split else None,
-                                split=original.split)
+        prof = compute_profiles(
+            edited, original.theta_o, kd=original.kd if original.split else None, split=original.split
+        )
     theta = np.asarray(targets.theta_o, float)
     counted = counted_views(theta, targets.alpha)
     if reachable is None:
-        reachable = view_reachable(theta, targets.mean, targets.var_tt, targets.var_pp,
-                                   _stack(original, "mu_theta"), 0.5 * (_stack(original, "sigma_tt")
-                                                                       + _stack(original, "sigma_pp")))
+        reachable = view_reachable(
+            theta,
+            targets.mean,
+            targets.var_tt,
+            targets.var_pp,
+            _stack(original, "mu_theta"),
+            0.5 * (_stack(original, "sigma_tt") + _stack(original, "sigma_pp")),
+        )
     use = counted & reachable
     alpha = np.nan_to_num(_stack(prof, "alpha"))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -124,11 +135,11 @@ def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) ->
     for i, ch in enumerate(RGB):
         u = use[:, i]
         where = {}
-        en, where["energy"] = _worst(e_energy[:, i:i + 1], u[:, None], theta)
-        vw, where["variance"] = _worst(e_var[:, i:i + 1], u[:, None], theta)
-        mn, where["mean"] = _worst(e_mean[:, i:i + 1], u[:, None], theta)
+        en, where["energy"] = _worst(e_energy[:, i : i + 1], u[:, None], theta)
+        vw, where["variance"] = _worst(e_var[:, i : i + 1], u[:, None], theta)
+        mn, where["mean"] = _worst(e_mean[:, i : i + 1], u[:, None], theta)
         if e_shape is not None:
-            sh, where["shape"] = _worst(e_shape[:, i:i + 1], shape_mask[:, i:i + 1], theta)
+            sh, where["shape"] = _worst(e_shape[:, i : i + 1], shape_mask[:, i : i + 1], theta)
         else:
             sh = float("nan")
         vm = float(np.median(e_var[u, i])) if u.any() else float("nan")

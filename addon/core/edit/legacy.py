@@ -38,6 +38,7 @@ from .reach import cell_variance_floor
 from .solve import directional_albedo  # one home each, shared with the reciprocal edit
 from .targets import MIN_SIGMA2, MODES, EditTargets, resolve_targets, target_energy  # noqa: F401 (re-exported)
 
+
 @dataclass
 class EditResult:
     table: MerlTable
@@ -45,7 +46,7 @@ class EditResult:
     target_sigma2: float
     achieved_mu_slope: float | None
     achieved_sigma2: float | None
-    max_albedo: np.ndarray            # per channel, over the sampled views
+    max_albedo: np.ndarray  # per channel, over the sampled views
     warnings: list = field(default_factory=list)
     profiles: Profiles | None = None  # re-measured profiles of the output
 
@@ -55,6 +56,7 @@ class EditResult:
 
 
 # --- warp mode -------------------------------------------------------------------------------
+
 
 def _graded_nodes(centre, scale, n_gauss=3, ratio=1.35):
     """Gauss nodes on [-pi/2, pi/2], panels growing geometrically away from ``centre``.
@@ -76,7 +78,7 @@ def _padded(rows):
     x = np.zeros((len(rows), n))
     w = np.zeros((len(rows), n))
     for k, (xs, ws) in enumerate(rows):
-        x[k, :len(xs)], w[k, :len(ws)] = xs, ws
+        x[k, : len(xs)], w[k, : len(ws)] = xs, ws
     return x, w
 
 
@@ -123,8 +125,8 @@ class SliceSamples:
         a = (np.abs(tw) <= HALF_PI).astype(float)
         b = (np.abs(qw) <= HALF_PI).astype(float)
         # The marginals of the kept rectangle (batched matmul: twice einsum's speed here).
-        wt = a * np.matmul(self.W, b[:, :, None])[:, :, 0]   # theta
-        wq = b * np.matmul(a[:, None, :], self.W)[:, 0, :]   # phi
+        wt = a * np.matmul(self.W, b[:, :, None])[:, :, 0]  # theta
+        wq = b * np.matmul(a[:, None, :], self.W)[:, 0, :]  # phi
         m0 = wt.sum(axis=1)
         ok = (m0 > 0) & (self.total > 0)
         m0s = np.where(ok, m0, 1.0)
@@ -151,7 +153,7 @@ def _warp_fixed_point(samples, mu_target, var_t_target, var_p_target, iters):
             lt = np.log(np.where(vt > 0, vt, np.nan) / var_t_target)
             lp = np.log(np.where(vp > 0, vp, np.nan) / var_p_target)
         r = np.stack([(mt - mu_target) / 0.002, lt / 0.02, lp / 0.02], axis=1)
-        score = np.nan_to_num((r ** 2).sum(axis=1), nan=np.inf)
+        score = np.nan_to_num((r**2).sum(axis=1), nan=np.inf)
         if best is None:
             best = [score, m.copy(), kt.copy(), kp.copy(), frac, r]
         else:
@@ -164,10 +166,12 @@ def _warp_fixed_point(samples, mu_target, var_t_target, var_p_target, iters):
         if np.all(done):
             break
         m = np.where(done, m, np.clip(m + (mu_target - mt), m0 - 0.5, m0 + 0.5))
-        kt = np.where(done, kt, np.clip(kt * np.sqrt(np.clip(np.nan_to_num(np.exp(-lt), nan=1.0), 0.25, 4.0)),
-                                        kt0 / 4, kt0 * 4))
-        kp = np.where(done, kp, np.clip(kp * np.sqrt(np.clip(np.nan_to_num(np.exp(-lp), nan=1.0), 0.25, 4.0)),
-                                        kp0 / 4, kp0 * 4))
+        kt = np.where(
+            done, kt, np.clip(kt * np.sqrt(np.clip(np.nan_to_num(np.exp(-lt), nan=1.0), 0.25, 4.0)), kt0 / 4, kt0 * 4)
+        )
+        kp = np.where(
+            done, kp, np.clip(kp * np.sqrt(np.clip(np.nan_to_num(np.exp(-lp), nan=1.0), 0.25, 4.0)), kp0 / 4, kp0 * 4)
+        )
     _, m, kt, kp, frac, r = best
     reached = (np.abs(r[:, 0]) < 2.5) & np.all(np.abs(r[:, 1:]) < 0.5, axis=1)  # 0.005 rad, 1 % variances
     return np.stack([m, kt, kp, np.maximum(frac, 0.25)], axis=1), reached  # gain capped at 4x
@@ -190,7 +194,7 @@ def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target, ite
     sub = samples.subset(todo)
     mu_sub, vt_sub, vp_sub = mu_target[todo], var_t_target[todo], var_p_target[todo]
     lo = np.full(len(todo), -6.0)  # log variance scale; e^-6 narrows any lobe enough to fit
-    hi = np.zeros(len(todo))       # scale 1: out of reach
+    hi = np.zeros(len(todo))  # scale 1: out of reach
     found = np.zeros(len(todo), bool)
     for _ in range(halvings):
         mid = 0.5 * (lo + hi)
@@ -203,8 +207,9 @@ def solve_warp(samples: SliceSamples, mu_target, var_t_target, var_p_target, ite
     if not found.all():
         rest = ~found
         scale = np.exp(lo[rest])
-        p, _ = _warp_fixed_point(sub.subset(np.flatnonzero(rest)), mu_sub[rest], vt_sub[rest] * scale,
-                                 vp_sub[rest] * scale, iters)
+        p, _ = _warp_fixed_point(
+            sub.subset(np.flatnonzero(rest)), mu_sub[rest], vt_sub[rest] * scale, vp_sub[rest] * scale, iters
+        )
         params[todo[rest]] = p
     return params, reached
 
@@ -259,6 +264,7 @@ def _truncated_gauss(x, m, s):
 
 # --- tabulation ------------------------------------------------------------------------------
 
+
 def _view_frame(w_view, w_lit):
     """Elevation of the view and the view-centred angles of the lit direction in its frame."""
     elev = np.arccos(np.clip(w_view[:, 2], -1.0, 1.0))
@@ -307,18 +313,18 @@ ENERGY_PASSES = 2
 EXTRA_ROUNDS = 6
 CLOSING_WINDOW = 3
 CLOSING_GAIN = 0.1
-ENERGY_TOLERANCE = 0.2   # as in _energy_check
+ENERGY_TOLERANCE = 0.2  # as in _energy_check
 ENERGY_VIEWS = math.radians(80.0)  # beyond, a broad lobe's energy is clipped at the horizon
 GAIN_RANGE = (1e-3, 1e3)
 
 
 @dataclass
 class _Round:
-    x: np.ndarray        # synthesis (slope, log variance)
-    y: np.ndarray        # re-measured (slope, log variance)
-    z: np.ndarray        # (y - goal) / ROUND_UNITS
-    energy_off: float    # largest |re-measured / wanted energy - 1| up to ENERGY_VIEWS
-    ratio: np.ndarray    # (views, 3) wanted / re-measured energy
+    x: np.ndarray  # synthesis (slope, log variance)
+    y: np.ndarray  # re-measured (slope, log variance)
+    z: np.ndarray  # (y - goal) / ROUND_UNITS
+    energy_off: float  # largest |re-measured / wanted energy - 1| up to ENERGY_VIEWS
+    ratio: np.ndarray  # (views, 3) wanted / re-measured energy
     out: MerlTable
     notes: list
     profiles: Profiles
@@ -333,8 +339,9 @@ def _secant_jacobian(points, best, jac):
     """The 2x2 Jacobian fitted by least squares to the (up to 3) points (x, y) nearest the best
     round in synthesis space, pulled lightly toward the previous estimate. Rank-one secant
     updates could not learn how the slope feeds the variance on narrow lobes."""
-    near = sorted((p for p in points if np.any(p[0] != best.x)),
-                  key=lambda p: float(np.sum(((p[0] - best.x) / STEP_UNITS) ** 2)))[:3]
+    near = sorted(
+        (p for p in points if np.any(p[0] != best.x)), key=lambda p: float(np.sum(((p[0] - best.x) / STEP_UNITS) ** 2))
+    )[:3]
     if not near:
         return jac
     dx = np.array([p[0] - best.x for p in near])
@@ -411,8 +418,15 @@ def _pick_round(rounds):
     return min(held, key=off) if held else min(near, key=lambda r: r.energy_off)
 
 
-def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, fit: dict | None = None,
-         remeasure: bool = True, progress=None, max_rounds: int = 10) -> EditResult:
+def edit(
+    table: MerlTable,
+    targets: EditTargets,
+    prof: Profiles | None = None,
+    fit: dict | None = None,
+    remeasure: bool = True,
+    progress=None,
+    max_rounds: int = 10,
+) -> EditResult:
     """Re-synthesize ``table`` for the slider ``targets``. Never modifies ``table``.
 
     The reciprocal combination moves the moments (a lobe seen with the roles swapped sits
@@ -440,8 +454,13 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
         out = table.copy()
         out.path = None
         return _finish(out, targets, mu_t, s2_t, warnings, prof, remeasure)
-    if (targets.mode == "warp" and targets.mu_slope is None and targets.sigma2 is None and not targets.lock
-            and targets.grazing_boost == 1.0):
+    if (
+        targets.mode == "warp"
+        and targets.mu_slope is None
+        and targets.sigma2 is None
+        and not targets.lock
+        and targets.grazing_boost == 1.0
+    ):
         # Energy only: the specular part scales exactly, per channel.
         kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
         spec = np.maximum(table.rho - kd[:, None], 0.0)
@@ -459,9 +478,9 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     energy_views = np.asarray(prof.theta_o, float) <= ENERGY_VIEWS + 1e-9
     gain = np.ones_like(alpha_goal)  # per view and channel, fixed between energy passes
     passes = 0
-    rounds, phase = [], []           # every round; the rounds since the last energy pass
-    points = []                      # (x, y) for the Jacobian, carried over energy passes
-    before_pass = None               # the best round when the last energy pass began
+    rounds, phase = [], []  # every round; the rounds since the last energy pass
+    points = []  # (x, y) for the Jacobian, carried over energy passes
+    before_pass = None  # the best round when the last energy pass began
     x, jac, radius = goal.copy(), np.eye(2), 1.0
     for round_ in range(max_rounds + EXTRA_ROUNDS):
         vt = view_goals(prof, fit, targets.mode, x[0], math.exp(x[1])) + (gain,)
@@ -514,9 +533,11 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     warnings += pick.notes
     if abs(f["mu_slope"] - mu_t) >= 0.01 or abs(f["sigma2"] / s2_t - 1.0) >= 0.02:
         # "Not reached", not "unreachable": near a fold the rounds can miss a point by the map's noise.
-        warnings.append(f"target not reached: reached mean slope {f['mu_slope']:+.3f} (target {mu_t:+.3f}) and "
-                        f"variance {f['sigma2']:.4g} (target {s2_t:.4g}); it may lie beyond what a reciprocal "
-                        "table can show")
+        warnings.append(
+            f"target not reached: reached mean slope {f['mu_slope']:+.3f} (target {mu_t:+.3f}) and "
+            f"variance {f['sigma2']:.4g} (target {s2_t:.4g}); it may lie beyond what a reciprocal "
+            "table can show"
+        )
     energy_note = _energy_check(new_prof, alpha_goal)
     if energy_note:
         warnings.append(energy_note)
@@ -547,8 +568,10 @@ def _energy_check(new_prof, alpha_target, tolerance=0.2):
     if not bad.any():
         return None
     deg = np.degrees(np.asarray(new_prof.theta_o, float)[bad])
-    return (f"energy not held at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): off by up to "
-            f"{100 * off.max():.0f} % (lobe at the scale of the table's cells, or clipped at the horizon)")
+    return (
+        f"energy not held at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): off by up to "
+        f"{100 * off.max():.0f} % (lobe at the scale of the table's cells, or clipped at the horizon)"
+    )
 
 
 def synthesize(table, targets, prof, fit, view_targets=None, values=None, samples=None):
@@ -569,8 +592,10 @@ def synthesize(table, targets, prof, fit, view_targets=None, values=None, sample
     floor = cell_variance_floor(theta, goal_mean)
     narrow = (goal_vt < floor) | (goal_vp < floor)
     if narrow.any():
-        notes.append(f"a lobe narrower than the table's cells cannot be tabulated: variance raised to the cell "
-                     f"size at {int(narrow.sum())} view(s) (down to {floor[narrow].min():.2g} rad²)")
+        notes.append(
+            f"a lobe narrower than the table's cells cannot be tabulated: variance raised to the cell "
+            f"size at {int(narrow.sum())} view(s) (down to {floor[narrow].min():.2g} rad²)"
+        )
         goal_vt, goal_vp = np.maximum(goal_vt, floor), np.maximum(goal_vp, floor)
     alpha_new = target_energy(prof, fit, targets) * energy_gain  # (views, 3)
     p = prof["avg"]
@@ -587,13 +612,18 @@ def synthesize(table, targets, prof, fit, view_targets=None, values=None, sample
         params, reached = solve_warp(samples, mu_target, vt_target, vp_target)
         if not reached.all():
             bad = np.degrees(theta[~reached])
-            notes.append(f"warp: clipping by the hemisphere keeps {len(bad)} view(s) "
-                         f"({bad.min():.0f}-{bad.max():.0f} deg) off their per-view targets")
+            notes.append(
+                f"warp: clipping by the hemisphere keeps {len(bad)} view(s) "
+                f"({bad.min():.0f}-{bad.max():.0f} deg) off their per-view targets"
+            )
         alpha_old = np.stack([np.nan_to_num(np.asarray(prof[c]["alpha"], float)) for c in "rgb"], axis=1)
         # Energy factor per channel: the warp keeps a fraction of the mass, the rest is clipped.
         with np.errstate(divide="ignore", invalid="ignore"):
-            gain = np.where(alpha_old > 1e-12 * max(alpha_old.max(), 1e-300),
-                            alpha_new / (alpha_old * np.maximum(params[:, 3:4], 1e-3)), 0.0)
+            gain = np.where(
+                alpha_old > 1e-12 * max(alpha_old.max(), 1e-300),
+                alpha_new / (alpha_old * np.maximum(params[:, 3:4], 1e-3)),
+                0.0,
+            )
 
         # The lookup's geometry runs in float32: it moves a lookup to a neighbour cell only
         # within ~1e-7 rad of a cell edge (cells are 2e-4 rad and wider), never a centre, and
@@ -625,8 +655,10 @@ def synthesize(table, targets, prof, fit, view_targets=None, values=None, sample
         m, s, ok = _reachable_truncated(goal_mean, goal_vt)
         m_p, s_p, ok_p = _reachable_truncated(np.zeros_like(theta), goal_vp)
         if not (ok.all() and ok_p.all()):
-            notes.append("model: no truncated Gaussian has the target mean and variance at "
-                         f"{int((~ok).sum())} view(s); the nearest reachable lobe is used")
+            notes.append(
+                "model: no truncated Gaussian has the target mean and variance at "
+                f"{int((~ok).sum())} view(s); the nearest reachable lobe is used"
+            )
 
         per_view = np.column_stack([m, s, m_p, s_p, alpha_new])
 
@@ -710,8 +742,10 @@ def _active_sides(valid, grid):
     key = (hash(active.tobytes()), len(active), tuple(np.round(np.asarray(grid, float), 12)))
     if _ACTIVE_CACHE.get("key") != key:
         _ACTIVE_CACHE.clear()
-        sides = tuple(_CellSide(*(np.ascontiguousarray(x[active]) for x in frame), np.asarray(grid, float))
-                      for frame in (frame_a, frame_b))
+        sides = tuple(
+            _CellSide(*(np.ascontiguousarray(x[active]) for x in frame), np.asarray(grid, float))
+            for frame in (frame_a, frame_b)
+        )
         _ACTIVE_CACHE.update(key=key, value=(active, sides))
     return _ACTIVE_CACHE["value"]
 
@@ -766,8 +800,10 @@ def _tabulate(table, evaluate, kd, grid, geometric=False):
 def _finish(out, targets, mu_t, s2_t, warnings, prof, remeasure):
     albedo = directional_albedo(out).max(axis=0)
     if np.any(albedo > 1.0):
-        warnings.append(f"the edited material reflects more than it receives (largest directional albedo "
-                        f"{albedo.max():.3f} > 1); scale it down with scale_to_albedo")
+        warnings.append(
+            f"the edited material reflects more than it receives (largest directional albedo "
+            f"{albedo.max():.3f} > 1); scale it down with scale_to_albedo"
+        )
     achieved_mu = achieved_s2 = None
     new_prof = None
     if remeasure:
@@ -784,6 +820,13 @@ def scale_to_albedo(result: EditResult, limit: float = 1.0) -> EditResult:
         return result
     f = limit / peak
     t = MerlTable(result.table.rho * f, result.table.valid.copy(), None)
-    return EditResult(t, result.target_mu_slope, result.target_sigma2, result.achieved_mu_slope,
-                      result.achieved_sigma2, result.max_albedo * f,
-                      [w for w in result.warnings if "reflects more" not in w], result.profiles)
+    return EditResult(
+        t,
+        result.target_mu_slope,
+        result.target_sigma2,
+        result.achieved_mu_slope,
+        result.achieved_sigma2,
+        result.max_albedo * f,
+        [w for w in result.warnings if "reflects more" not in w],
+        result.profiles,
+    )

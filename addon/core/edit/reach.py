@@ -37,7 +37,7 @@ def cell_variance_floor(theta_o, mean):
     the mirror, 0.035 rad at the pole. Half a cell width as the floor on sigma keeps a
     centre within one sigma of any lobe."""
     theta_h = np.clip(np.abs(np.asarray(theta_o, float) + np.asarray(mean, float)) / 2.0, 0.0, HALF_PI)
-    step_h = np.maximum(2.0 * np.sqrt(theta_h / HALF_PI) * HALF_PI / 90.0, HALF_PI / 90.0 ** 2)
+    step_h = np.maximum(2.0 * np.sqrt(theta_h / HALF_PI) * HALF_PI / 90.0, HALF_PI / 90.0**2)
     return (0.5 * 2.0 * step_h) ** 2
 
 
@@ -81,7 +81,7 @@ class ReachableRegion:
     mu_max: np.ndarray
     sigma2_min: float
     sigma2_max: float
-    fitted: tuple = (0.0, 0.0)   # the material's (mu~, sigma~^2)
+    fitted: tuple = (0.0, 0.0)  # the material's (mu~, sigma~^2)
     notes: list = field(default_factory=list)
 
     def contains(self, mu, s2) -> bool:
@@ -114,24 +114,39 @@ class ReachableRegion:
 
     def to_json(self) -> dict:
         clean = lambda a: [None if not np.isfinite(v) else float(v) for v in np.asarray(a, float)]  # noqa: E731
-        return {"sigma2": clean(self.sigma2), "mu_min": clean(self.mu_min), "mu_max": clean(self.mu_max),
-                "sigma2_min": self.sigma2_min, "sigma2_max": self.sigma2_max, "fitted": list(self.fitted)}
-
+        return {
+            "sigma2": clean(self.sigma2),
+            "mu_min": clean(self.mu_min),
+            "mu_max": clean(self.mu_max),
+            "sigma2_min": self.sigma2_min,
+            "sigma2_max": self.sigma2_max,
+            "fitted": list(self.fitted),
+        }
 
     @classmethod
     def from_json(cls, d: dict) -> "ReachableRegion":
         """The inverse of ``to_json``; ValueError when ``d`` is not a region (a stored copy may be
         damaged or edited)."""
         try:
-            arrays = [np.array([np.nan if v is None else float(v) for v in d[k]]) for k in ("sigma2", "mu_min", "mu_max")]
+            arrays = [
+                np.array([np.nan if v is None else float(v) for v in d[k]]) for k in ("sigma2", "mu_min", "mu_max")
+            ]
             smin, smax = float(d["sigma2_min"]), float(d["sigma2_max"])
             fitted = tuple(float(v) for v in d["fitted"])
         except (KeyError, TypeError, ValueError):
             raise ValueError("not a reachable region") from None
         n = len(arrays[0])
-        if not (1 <= n <= 10_000 and all(len(a) == n for a in arrays) and len(fitted) == 2
-                and np.all(np.isfinite(arrays[0])) and np.all(arrays[0] > 0) and np.all(np.diff(arrays[0]) > 0)
-                and math.isfinite(smin) and math.isfinite(smax) and 0 < smin <= smax):
+        if not (
+            1 <= n <= 10_000
+            and all(len(a) == n for a in arrays)
+            and len(fitted) == 2
+            and np.all(np.isfinite(arrays[0]))
+            and np.all(arrays[0] > 0)
+            and np.all(np.diff(arrays[0]) > 0)
+            and math.isfinite(smin)
+            and math.isfinite(smax)
+            and 0 < smin <= smax
+        ):
             raise ValueError("not a reachable region")
         return cls(*arrays, smin, smax, fitted)
 
@@ -139,8 +154,10 @@ class ReachableRegion:
         """(mu, sigma2) of the region's outline: up the lower mean-slope edge, down the upper one."""
         ok = np.isfinite(self.mu_min) & np.isfinite(self.mu_max)
         s2 = self.sigma2[ok]
-        return (np.concatenate([self.mu_min[ok], self.mu_max[ok][::-1], self.mu_min[ok][:1]]),
-                np.concatenate([s2, s2[::-1], s2[:1]]))
+        return (
+            np.concatenate([self.mu_min[ok], self.mu_max[ok][::-1], self.mu_min[ok][:1]]),
+            np.concatenate([s2, s2[::-1], s2[:1]]),
+        )
 
 
 def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableRegion:

@@ -39,14 +39,14 @@ KNOTS = 16
 # Residual units: the SPEC §6 tolerances (log energy, mean in rad, log variance).
 UNITS = np.array([0.02, 0.02, 0.02])
 # Smoothness across theta_d rings (second differences), in the controls' own units.
-SMOOTH = np.array([0.05, 0.05, 0.05])   # log s, q~, log G
+SMOOTH = np.array([0.05, 0.05, 0.05])  # log s, q~, log G
 DAMPING = 0.3
 GAIN_DAMPING = 1e-3
-ROBUST = 3.0   # residual (in UNITS) beyond which a view's pull stops growing
-LOG_S_RANGE = (-2.3, 1.2)   # width scale 0.1 .. 3.3
+ROBUST = 3.0  # residual (in UNITS) beyond which a view's pull stops growing
+LOG_S_RANGE = (-2.3, 1.2)  # width scale 0.1 .. 3.3
 Q_RANGE = (-4.0, 4.0)
-MAX_STEP = 0.5               # trust region: the largest change of any control in one step
-TILT_MAX = 3.0               # the tilt may raise a cell by at most e^3 (cells at the horizon)
+MAX_STEP = 0.5  # trust region: the largest change of any control in one step
+TILT_MAX = 3.0  # the tilt may raise a cell by at most e^3 (cells at the horizon)
 
 
 _GEOMETRY: dict = {}
@@ -67,9 +67,9 @@ def _cell_geometry():
 class Controls:
     """The transform's controls per theta_d ring."""
 
-    log_s: np.ndarray    # (90,)
-    q: np.ndarray        # (90,) tilt in the scaled units q~ (q = q~ / V_ring)
-    log_g: np.ndarray    # (90, C) per channel
+    log_s: np.ndarray  # (90,)
+    q: np.ndarray  # (90,) tilt in the scaled units q~ (q = q~ / V_ring)
+    log_g: np.ndarray  # (90, C) per channel
 
     @classmethod
     def identity(cls, channels=3):
@@ -94,8 +94,8 @@ class Transform:
         (pi/2)) * 90; below the first centre the data are mirrored about theta_h = 0 (u = 0), where
         a lobe is even in the signed ring coordinate. At s = 1 the lookup returns the values."""
         s = np.exp(log_s)
-        p = self.ih[:, None] / np.sqrt(s)[None, :] - 0.5            # (ih, id) fractional ring
-        dp = -0.5 * (p + 0.5)                                        # d p / d log s
+        p = self.ih[:, None] / np.sqrt(s)[None, :] - 0.5  # (ih, id) fractional ring
+        dp = -0.5 * (p + 0.5)  # d p / d log s
         inside = p <= RES_TH - 1.0
         pc = np.clip(p, -0.5, RES_TH - 1.0)
         i0 = np.floor(pc).astype(np.int64)
@@ -104,8 +104,11 @@ class Transform:
         # Catmull-Rom as four weights per (theta_h, theta_d) ring pair: the full-size arrays are
         # touched once per weight instead of once per polynomial term.
         w = 0.5 * np.stack([-f + 2.0 * f2 - f3, 2.0 - 5.0 * f2 + 3.0 * f3, f + 4.0 * f2 - 3.0 * f3, f3 - f2])
-        dw = 0.5 * np.stack([-1.0 + 4.0 * f - 3.0 * f2, -10.0 * f + 9.0 * f2, 1.0 + 8.0 * f - 9.0 * f2,
-                             3.0 * f2 - 2.0 * f]) * dp
+        dw = (
+            0.5
+            * np.stack([-1.0 + 4.0 * f - 3.0 * f2, -10.0 * f + 9.0 * f2, 1.0 + 8.0 * f - 9.0 * f2, 3.0 * f2 - 2.0 * f])
+            * dp
+        )
         w *= inside
         dw *= inside
         idx = np.arange(RES_TD)[None, :]
@@ -131,8 +134,8 @@ class Transform:
         """Specular values (90, 90, 180, C); with derivatives d/d log s and d/d q~ (same shape)."""
         val, dval = self._interp(c.log_s, derivative=with_derivatives)
         qr = (c.q / self.ring_var)[None, :, None]
-        tilt = np.exp(np.clip(qr * self.L, -700.0, TILT_MAX))            # (ih, id, 180)
-        gain = np.exp(c.log_g - 2.0 * c.log_s[:, None])              # (id, C)
+        tilt = np.exp(np.clip(qr * self.L, -700.0, TILT_MAX))  # (ih, id, 180)
+        gain = np.exp(c.log_g - 2.0 * c.log_s[:, None])  # (id, C)
         # In place: val and dval are this call's own arrays (full-size temporaries cost more
         # than the arithmetic here).
         out = val
@@ -169,8 +172,10 @@ class RingSums:
         # columns of the (memory-mapped) operator took 2 of the 2.8 s this costs per process.
         weights = op.weights
         n_cells = RES_TH * RES_TD * RES_PD
-        self.mats = [csr_matrix((np.asarray(weights[:, j], dtype=np.float64)[order], idx, indptr), shape=(n, n_cells))
-                     for j in _COLS]
+        self.mats = [
+            csr_matrix((np.asarray(weights[:, j], dtype=np.float64)[order], idx, indptr), shape=(n, n_cells))
+            for j in _COLS
+        ]
 
     def subset(self, views):
         """The same sums for some of the views only (rows sliced; the columns stay all cells)."""
@@ -184,7 +189,7 @@ class RingSums:
     def sums(self, flat_values):
         """(views, 90 rings, 5 monomials[, k]) for per-cell values (N_CELLS,) or (N_CELLS, k)."""
         v = np.asarray(flat_values, dtype=np.float64)
-        out = np.stack([m @ v for m in self.mats], axis=1)           # (V*90, 5[, k])
+        out = np.stack([m @ v for m in self.mats], axis=1)  # (V*90, 5[, k])
         return out.reshape((self.n_views, RES_TD) + out.shape[1:])
 
 
@@ -208,13 +213,21 @@ def _residual_jacobian(Sr, dSr, goal_e, goal_mx, goal_v, weight):
     de = d0 / s0
     dmx = (dx - mx[:, None] * d0) / s0
     dmp = (dp_ - mp[:, None] * d0) / s0
-    dvar = 0.5 * ((dxx - (S[:, 3] / s0[:, 0])[:, None] * d0) / s0 - 2 * mx[:, None] * dmx
-                  + (dpp - (S[:, 4] / s0[:, 0])[:, None] * d0) / s0 - 2 * mp[:, None] * dmp)
+    dvar = 0.5 * (
+        (dxx - (S[:, 3] / s0[:, 0])[:, None] * d0) / s0
+        - 2 * mx[:, None] * dmx
+        + (dpp - (S[:, 4] / s0[:, 0])[:, None] * d0) / s0
+        - 2 * mp[:, None] * dmp
+    )
     v = np.maximum(var, 1e-300)[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.concatenate([np.log(np.maximum(e, 1e-300) / goal_e) / UNITS[0],
-                            (mx - goal_mx) / UNITS[1],
-                            np.log(np.maximum(var, 1e-300) / goal_v) / UNITS[2]])
+        r = np.concatenate(
+            [
+                np.log(np.maximum(e, 1e-300) / goal_e) / UNITS[0],
+                (mx - goal_mx) / UNITS[1],
+                np.log(np.maximum(var, 1e-300) / goal_v) / UNITS[2],
+            ]
+        )
         J = np.concatenate([de / UNITS[0], dmx / UNITS[1], dvar / v / UNITS[2]])
     w = np.concatenate([weight[:, 0], weight[:, 1], weight[:, 2]])
     r = np.nan_to_num(r) * w
@@ -225,7 +238,7 @@ def _residual_jacobian(Sr, dSr, goal_e, goal_mx, goal_v, weight):
 def _second_difference(n):
     d = np.zeros((n - 2, n))
     for i in range(n - 2):
-        d[i, i:i + 3] = (1.0, -2.0, 1.0)
+        d[i, i : i + 3] = (1.0, -2.0, 1.0)
     return d
 
 
@@ -248,8 +261,17 @@ def knot_basis(n_knots):
     return np.maximum(0.0, 1.0 - np.abs(x[:, None] - k[None, :]))
 
 
-def solve_controls(transform: Transform, rings: RingSums, goal_alpha, goal_mx, goal_var, weight,
-                   steps=None, start_controls: Controls | None = None, n_knots=None):
+def solve_controls(
+    transform: Transform,
+    rings: RingSums,
+    goal_alpha,
+    goal_mx,
+    goal_var,
+    weight,
+    steps=None,
+    start_controls: Controls | None = None,
+    n_knots=None,
+):
     """Damped Gauss-Newton on (log s, q~, log G_avg), each a hat spline over theta_d, on the
     average channel, added to ``start_controls`` (per ring).
 
@@ -259,8 +281,8 @@ def solve_controls(transform: Transform, rings: RingSums, goal_alpha, goal_mx, g
     B = knot_basis(KNOTS if n_knots is None else n_knots)
     K = B.shape[1]
     base = start_controls or Controls.identity(1)
-    y = np.zeros(3 * K)                                              # knot offsets
-    Bfull = np.kron(np.eye(3), B)                                    # (270, 3K)
+    y = np.zeros(3 * K)  # knot offsets
+    Bfull = np.kron(np.eye(3), B)  # (270, 3K)
     D2 = _second_difference(K) if K > 2 else np.zeros((0, K))
     reg = np.kron(np.eye(3), D2) / np.repeat(SMOOTH, len(D2))[:, None]
     x0 = np.concatenate([base.log_s, base.q, base.log_g[:, 0]])
@@ -269,7 +291,7 @@ def solve_controls(transform: Transform, rings: RingSums, goal_alpha, goal_mx, g
 
     def controls(y):
         x = x0 + Bfull @ y
-        return Controls(np.clip(x[:n], *LOG_S_RANGE), np.clip(x[n:2 * n], *Q_RANGE), x[2 * n:, None].copy())
+        return Controls(np.clip(x[:n], *LOG_S_RANGE), np.clip(x[n : 2 * n], *Q_RANGE), x[2 * n :, None].copy())
 
     c = controls(y)
     for _ in range(steps):
@@ -279,7 +301,7 @@ def solve_controls(transform: Transform, rings: RingSums, goal_alpha, goal_mx, g
         r, Jg = _residual_jacobian(Sr, Sr, goal_alpha, goal_mx, goal_var, weight)
         _, Js = _residual_jacobian(Sr, Ss, goal_alpha, goal_mx, goal_var, weight)
         _, Jq = _residual_jacobian(Sr, Sq, goal_alpha, goal_mx, goal_var, weight)
-        J = np.concatenate([Js @ B, Jq @ B, Jg @ B], axis=1)          # (3V, 3K)
+        J = np.concatenate([Js @ B, Jq @ B, Jg @ B], axis=1)  # (3V, 3K)
         # A robust (pseudo-Huber) loss: a view whose target is out of reach (a lobe clipped at
         # the horizon) must not pull every other view off theirs, yet a view far off still pulls
         # (its residual grows like sqrt|r|; a Cauchy loss let such views go). Smooth in r.
@@ -307,12 +329,12 @@ def channel_gains(transform: Transform, rings: RingSums, c: Controls, goal_alpha
     vals = transform.values(shape)
     reg = _D2 / SMOOTH[2]
     out = np.zeros((RES_TD, 3))
-    energy = rings.mats[0] @ vals.reshape(-1, vals.shape[-1])        # (V*90, C): energy per ring
+    energy = rings.mats[0] @ vals.reshape(-1, vals.shape[-1])  # (V*90, C): energy per ring
     for ch in range(3):
         A = energy[:, ch].reshape(rings.n_views, RES_TD)
         goal = np.asarray(goal_alpha_rgb[:, ch], float)
         ok = goal > 0
-        w = weight / np.where(ok, goal, 1.0) / UNITS[0]              # relative errors, in units
+        w = weight / np.where(ok, goal, 1.0) / UNITS[0]  # relative errors, in units
         M = A * w[:, None]
         base = np.exp(c.log_g[:, 0])
         # Unknown: G = base * (1 + y); residual w (A (base (1 + y)) - goal).
@@ -332,7 +354,7 @@ def spec_cube(values):
 
 def tabulate(table: MerlTable, transform: Transform, c: Controls, kd) -> MerlTable:
     """The edited table: transformed specular values plus kd, input's missing cells kept missing."""
-    vals = transform.values(c)                                        # (90, 90, 180, 3)
+    vals = transform.values(c)  # (90, 90, 180, 3)
     rho = np.ascontiguousarray(np.moveaxis(vals.reshape(-1, vals.shape[-1]), 1, 0))
     if not np.isfinite(rho).all() or rho.max(initial=0.0) > 1e30:
         raise ValueError("synthesis produced non-finite or absurd values; the slider targets are out of reach")

@@ -28,13 +28,13 @@ class EditResult:
     target_sigma2: float
     achieved_mu_slope: float | None
     achieved_sigma2: float | None
-    max_albedo: np.ndarray            # per channel, over the sampled views
+    max_albedo: np.ndarray  # per channel, over the sampled views
     warnings: list = field(default_factory=list)
     profiles: Profiles | None = None  # re-measured profiles of the output
     fidelity: Fidelity | None = None  # per-view figures against the sliders' targets
     region: ReachableRegion | None = None
-    clamped: bool = False             # the request lay outside the region and was moved to its edge
-    requested: tuple | None = None    # (mu, sigma2) before clamping
+    clamped: bool = False  # the request lay outside the region and was moved to its edge
+    requested: tuple | None = None  # (mu, sigma2) before clamping
     timings: dict = field(default_factory=dict)  # seconds: synthesis, remeasure
 
     @property
@@ -88,8 +88,7 @@ def _weights(theta, alpha):
     return np.repeat(f[:, None], 3, axis=1)
 
 
-def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, values=None, reachable=None,
-               draft=False):
+def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, values=None, reachable=None, draft=False):
     """The reciprocal table for per-view targets ``vt``; returns (table, controls, report).
     ``draft``: a quick, rougher solve (DRAFT_STEPS on every DRAFT_VIEW_STRIDE-th view)."""
     kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
@@ -99,8 +98,9 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, val
     rings = _rings(theta)
     ring_centres = (np.arange(RES_TD) + 0.5) / RES_TD * (0.5 * math.pi)
     p = prof["avg"]
-    measured_var = np.nan_to_num(0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float)),
-                                 nan=LAMBERT_VARIANCE)
+    measured_var = np.nan_to_num(
+        0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float)), nan=LAMBERT_VARIANCE
+    )
     ring_var = np.interp(ring_centres, theta, measured_var)
     goal_e, goal_mx, goal_v = _avg_goals(prof, fit, vt)
     weight = _weights(theta, goal_e)
@@ -114,12 +114,23 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, val
     with np.errstate(divide="ignore", invalid="ignore"):
         ls0 = np.nan_to_num(0.5 * np.log(goal_v / np.maximum(measured_var, 1e-300)))
         lg0 = np.nan_to_num(np.log(goal_e / np.maximum(measured_e, 1e-300)))
-    start = R.Controls(np.clip(np.interp(ring_centres, theta, ls0), *R.LOG_S_RANGE), np.zeros(RES_TD),
-                       np.clip(np.interp(ring_centres, theta, lg0), -5.0, 5.0)[:, None])
+    start = R.Controls(
+        np.clip(np.interp(ring_centres, theta, ls0), *R.LOG_S_RANGE),
+        np.zeros(RES_TD),
+        np.clip(np.interp(ring_centres, theta, lg0), -5.0, 5.0)[:, None],
+    )
     stride = DRAFT_VIEW_STRIDE if draft else 1
     sub = slice(None, None, stride)
-    controls, report = R.solve_controls(avg, _rings(theta, stride), goal_e[sub], goal_mx[sub], goal_v[sub],
-                                        weight[sub], start_controls=start, steps=DRAFT_STEPS if draft else None)
+    controls, report = R.solve_controls(
+        avg,
+        _rings(theta, stride),
+        goal_e[sub],
+        goal_mx[sub],
+        goal_v[sub],
+        weight[sub],
+        start_controls=start,
+        steps=DRAFT_STEPS if draft else None,
+    )
     del avg
     rgb = R.Transform(R.spec_cube(values[:, :3]), ring_var)
     controls.log_g = R.channel_gains(rgb, rings, controls, vt.alpha, weight[:, 0])
@@ -130,8 +141,9 @@ def _view_reach(prof, vt):
     from .reach import view_reachable
 
     st = lambda k: np.stack([np.asarray(prof[c][k], float) for c in "rgb"], axis=1)  # noqa: E731
-    return view_reachable(vt.theta_o, vt.mean, vt.var_tt, vt.var_pp, st("mu_theta"),
-                          0.5 * (st("sigma_tt") + st("sigma_pp")))
+    return view_reachable(
+        vt.theta_o, vt.mean, vt.var_tt, vt.var_pp, st("mu_theta"), 0.5 * (st("sigma_tt") + st("sigma_pp"))
+    )
 
 
 def directional_albedo(table: MerlTable, views=None) -> np.ndarray:
@@ -148,7 +160,7 @@ def directional_albedo(table: MerlTable, views=None) -> np.ndarray:
     return out
 
 
-ENERGY_WARNING = 0.2   # warn when a view's re-measured energy is this far off its target
+ENERGY_WARNING = 0.2  # warn when a view's re-measured energy is this far off its target
 
 
 def _energy_note(new_prof, vt):
@@ -163,8 +175,10 @@ def _energy_note(new_prof, vt):
     if not bad.any():
         return None
     deg = np.degrees(theta[bad])
-    return (f"energy not held at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): off by up to "
-            f"{100 * off.max():.0f} %")
+    return (
+        f"energy not held at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): off by up to "
+        f"{100 * off.max():.0f} %"
+    )
 
 
 # A re-fitted slider this far from its target is reported (the issue-4 round-trip tolerances):
@@ -189,8 +203,10 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **
     # A draft is only looked at (the full synthesis follows): no albedo pass (0.1-0.3 s).
     albedo = np.full(3, np.nan) if draft else directional_albedo(out).max(axis=0)
     if np.any(albedo > 1.0):
-        warnings.append(f"the edited material reflects more than it receives (largest directional albedo "
-                        f"{albedo.max():.3f} > 1); scale it down with scale_to_albedo")
+        warnings.append(
+            f"the edited material reflects more than it receives (largest directional albedo "
+            f"{albedo.max():.3f} > 1); scale it down with scale_to_albedo"
+        )
     achieved_mu = achieved_s2 = None
     new_prof = fid = None
     timings = extra.pop("timings", {})
@@ -208,8 +224,9 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **
             if note:
                 warnings.append(note)
         timings["remeasure"] = time.perf_counter() - t0
-    return EditResult(out, mu_t, s2_t, achieved_mu, achieved_s2, albedo, warnings, new_prof, fid,
-                      timings=timings, **extra)
+    return EditResult(
+        out, mu_t, s2_t, achieved_mu, achieved_s2, albedo, warnings, new_prof, fid, timings=timings, **extra
+    )
 
 
 # Model mode stays on the replaced pipeline by default: on the demo's edit (ggx_glossy, model,
@@ -220,9 +237,17 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **
 MODEL_SYNTHESIS = "legacy"
 
 
-def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, fit: dict | None = None,
-         remeasure: bool = True, progress=None, region: ReachableRegion | None = None,
-         model_synthesis: str | None = None, draft: bool = False) -> EditResult:
+def edit(
+    table: MerlTable,
+    targets: EditTargets,
+    prof: Profiles | None = None,
+    fit: dict | None = None,
+    remeasure: bool = True,
+    progress=None,
+    region: ReachableRegion | None = None,
+    model_synthesis: str | None = None,
+    draft: bool = False,
+) -> EditResult:
     """Re-synthesize ``table`` for the slider ``targets``. Never modifies ``table``.
 
     The request is clamped into the material's reachable region (reported), the per-view
@@ -262,17 +287,28 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
         old = legacy.edit(table, targets, prof, fit, remeasure=remeasure, progress=progress)
         vt = view_targets(prof, fit, targets, old.target_mu_slope, old.target_sigma2)
         fid = measure(old.profiles, vt, prof) if old.profiles is not None else None
-        return EditResult(old.table, old.target_mu_slope, old.target_sigma2, old.achieved_mu_slope,
-                          old.achieved_sigma2, old.max_albedo, list(old.warnings), old.profiles, fid,
-                          timings={"synthesis+rounds": time.perf_counter() - t0})
+        return EditResult(
+            old.table,
+            old.target_mu_slope,
+            old.target_sigma2,
+            old.achieved_mu_slope,
+            old.achieved_sigma2,
+            old.max_albedo,
+            list(old.warnings),
+            old.profiles,
+            fid,
+            timings={"synthesis+rounds": time.perf_counter() - t0},
+        )
     t0 = time.perf_counter()
     if region is None:
         region = reachable_region(prof, fit, mode=targets.mode)
     requested = (mu_t, s2_t)
     mu_c, s2_c, clamped = region.clamp(mu_t, s2_t)
     if clamped:
-        warnings.append(f"mean slope {mu_t:+.3f} and variance {s2_t:.4g} lie outside what a reciprocal table of "
-                        f"this material can show: clamped to the nearest reachable point ({mu_c:+.3f}, {s2_c:.4g})")
+        warnings.append(
+            f"mean slope {mu_t:+.3f} and variance {s2_t:.4g} lie outside what a reciprocal table of "
+            f"this material can show: clamped to the nearest reachable point ({mu_c:+.3f}, {s2_c:.4g})"
+        )
         mu_t, s2_t = mu_c, s2_c
     tell(1, 3)
     vt = view_targets(prof, fit, targets, mu_t, s2_t)
@@ -280,8 +316,20 @@ def edit(table: MerlTable, targets: EditTargets, prof: Profiles | None = None, f
     out, controls, report = synthesize(table, prof, fit, vt, draft=draft)
     t_syn = time.perf_counter() - t0
     tell(2, 3)
-    res = _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt, draft=draft, region=region, clamped=clamped,
-                  requested=requested, timings={"synthesis": t_syn, "region": t_reg})
+    res = _finish(
+        out,
+        mu_t,
+        s2_t,
+        warnings,
+        prof,
+        remeasure,
+        vt,
+        draft=draft,
+        region=region,
+        clamped=clamped,
+        requested=requested,
+        timings={"synthesis": t_syn, "region": t_reg},
+    )
     tell(3, 3)
     return res
 
@@ -293,7 +341,18 @@ def scale_to_albedo(result: EditResult, limit: float = 1.0) -> EditResult:
         return result
     f = limit / peak
     t = MerlTable(result.table.rho * f, result.table.valid.copy(), None)
-    return EditResult(t, result.target_mu_slope, result.target_sigma2, result.achieved_mu_slope,
-                      result.achieved_sigma2, result.max_albedo * f,
-                      [w for w in result.warnings if "reflects more" not in w], result.profiles,
-                      None, result.region, result.clamped, result.requested, dict(result.timings))
+    return EditResult(
+        t,
+        result.target_mu_slope,
+        result.target_sigma2,
+        result.achieved_mu_slope,
+        result.achieved_sigma2,
+        result.max_albedo * f,
+        [w for w in result.warnings if "reflects more" not in w],
+        result.profiles,
+        None,
+        result.region,
+        result.clamped,
+        result.requested,
+        dict(result.timings),
+    )

@@ -21,24 +21,35 @@ RGB = ("r", "g", "b")
 class EditTargets:
     """Slider values. ``None`` keeps the measured value (identity on that axis)."""
 
-    strength: float = 1.0                 # overall energy scale
-    colour: tuple = (1.0, 1.0, 1.0)       # per-channel energy scale
-    grazing_boost: float = 1.0            # scale of the energy above the base alpha_b
-    mu_slope: float | None = None         # in [-1, 0]
-    sigma2: float | None = None           # in (0, pi^2/12]
+    strength: float = 1.0  # overall energy scale
+    colour: tuple = (1.0, 1.0, 1.0)  # per-channel energy scale
+    grazing_boost: float = 1.0  # scale of the energy above the base alpha_b
+    mu_slope: float | None = None  # in [-1, 0]
+    sigma2: float | None = None  # in (0, pi^2/12]
     mode: str = "warp"
-    lock: bool = False                    # sigma2 follows mu_slope along the correlation quadratic
-    correlation_a: float | None = None    # the quadratic's a (from a set fit); needed with lock
+    lock: bool = False  # sigma2 follows mu_slope along the correlation quadratic
+    correlation_a: float | None = None  # the quadratic's a (from a set fit); needed with lock
 
     def is_identity(self) -> bool:
-        return (self.mode == "warp" and self.strength == 1.0 and tuple(self.colour) == (1.0, 1.0, 1.0)
-                and self.grazing_boost == 1.0 and self.mu_slope is None and self.sigma2 is None
-                and not self.lock)
+        return (
+            self.mode == "warp"
+            and self.strength == 1.0
+            and tuple(self.colour) == (1.0, 1.0, 1.0)
+            and self.grazing_boost == 1.0
+            and self.mu_slope is None
+            and self.sigma2 is None
+            and not self.lock
+        )
 
     def is_energy_only(self) -> bool:
         """Warp mode, only strength and colour moved: the specular part scales exactly."""
-        return (self.mode == "warp" and self.mu_slope is None and self.sigma2 is None and not self.lock
-                and self.grazing_boost == 1.0)
+        return (
+            self.mode == "warp"
+            and self.mu_slope is None
+            and self.sigma2 is None
+            and not self.lock
+            and self.grazing_boost == 1.0
+        )
 
 
 def resolve_targets(t: EditTargets, fit: dict):
@@ -108,14 +119,14 @@ class ViewTargets:
     ``shape`` holds the standardized moments to keep (warp mode: the measured ones), or None
     (model mode: the model's lobe has its own shape)."""
 
-    theta_o: np.ndarray       # (V,)
-    alpha: np.ndarray         # (V, 3)
-    mean: np.ndarray          # (V, 3) mu_theta
-    var_tt: np.ndarray        # (V, 3)
-    var_pp: np.ndarray        # (V, 3)
-    shape: dict | None        # key -> (V, 3): skew_30, skew_03, kurt_40, kurt_04 (excess)
+    theta_o: np.ndarray  # (V,)
+    alpha: np.ndarray  # (V, 3)
+    mean: np.ndarray  # (V, 3) mu_theta
+    var_tt: np.ndarray  # (V, 3)
+    var_pp: np.ndarray  # (V, 3)
+    shape: dict | None  # key -> (V, 3): skew_30, skew_03, kurt_40, kurt_04 (excess)
     mode: str = "warp"
-    mu_slope: float = 0.0     # the sliders as resolved
+    mu_slope: float = 0.0  # the sliders as resolved
     sigma2: float = 0.0
 
     @property
@@ -139,9 +150,19 @@ def view_targets(prof: Profiles, fit: dict, t: EditTargets, mu: float, s2: float
     theta = np.asarray(prof.theta_o, float)
     if t.mode == "model":
         full = np.ones((len(theta), 3))
-        return ViewTargets(theta, model_energy(prof, fit, t), (mu * theta)[:, None] * full, s2 * full, s2 * full,
-                           None, "model", mu, s2)
+        return ViewTargets(
+            theta, model_energy(prof, fit, t), (mu * theta)[:, None] * full, s2 * full, s2 * full, None, "model", mu, s2
+        )
     ratio = s2 / fit["sigma2"]
     mean = _stack(prof, "mu_theta") + (mu - fit["mu_slope"]) * theta[:, None]
-    return ViewTargets(theta, target_energy(prof, fit, t), mean, _stack(prof, "sigma_tt") * ratio,
-                       _stack(prof, "sigma_pp") * ratio, {k: _stack(prof, k) for k in SHAPE_KEYS}, "warp", mu, s2)
+    return ViewTargets(
+        theta,
+        target_energy(prof, fit, t),
+        mean,
+        _stack(prof, "sigma_tt") * ratio,
+        _stack(prof, "sigma_pp") * ratio,
+        {k: _stack(prof, k) for k in SHAPE_KEYS},
+        "warp",
+        mu,
+        s2,
+    )

@@ -18,15 +18,43 @@ Public API
 
 from .cache import BakeCache, bake_key
 from .envmap import Environment, direction_to_uv, uv_to_direction
-from .estimators import (bake_sphere, normalized_rmse, reference_sphere, relative_rmse, render_baked,
-                         render_reference)
-from .lobe import (LobeTable, ModelBRDF, MomentParams, TableBRDF, truncated_params, truncnorm_mass, truncnorm_pdf,
-                   truncnorm_sample)
+from .estimators import bake_sphere, normalized_rmse, reference_sphere, relative_rmse, render_baked, render_reference
+from .lobe import (
+    LobeTable,
+    ModelBRDF,
+    MomentParams,
+    TableBRDF,
+    truncated_params,
+    truncnorm_mass,
+    truncnorm_pdf,
+    truncnorm_sample,
+)
 from .scene import VIEW, Layout, interior_texels, local_frames, sphere_layout, sphere_points
 
 __all__ = [
-    "BakeCache", "bake_key", "Environment", "direction_to_uv", "uv_to_direction", "bake_sphere", "reference_sphere",
-    "relative_rmse", "normalized_rmse", "render_baked", "render_reference", "LobeTable", "ModelBRDF", "MomentParams", "TableBRDF",
-    "truncated_params", "truncnorm_mass", "truncnorm_pdf", "truncnorm_sample", "VIEW", "Layout",
-    "interior_texels", "local_frames", "sphere_layout", "sphere_points",
+    "BakeCache",
+    "bake_key",
+    "Environment",
+    "direction_to_uv",
+    "uv_to_direction",
+    "bake_sphere",
+    "reference_sphere",
+    "relative_rmse",
+    "normalized_rmse",
+    "render_baked",
+    "render_reference",
+    "LobeTable",
+    "ModelBRDF",
+    "MomentParams",
+    "TableBRDF",
+    "truncated_params",
+    "truncnorm_mass",
+    "truncnorm_pdf",
+    "truncnorm_sample",
+    "VIEW",
+    "Layout",
+    "interior_texels",
+    "local_frames",
+    "sphere_layout",
+    "sphere_points",
 ]

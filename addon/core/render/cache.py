@@ -15,6 +15,7 @@ import numpy as np
 
 from .estimators import bake_sphere
 
+
 def _code_version():
     """Hash of the modules a bake's numbers come from: a bake made by other code is a miss."""
     h = hashlib.sha256(b"bake")
@@ -50,7 +51,7 @@ class BakeCache:
         self.max_files = int(max_files or BAKE_CACHE_MAX_ENTRIES)
         self.max_bytes = int(max_bytes or BAKE_CACHE_MAX_BYTES)
         self._mem = OrderedDict()
-        self.computed = []          # keys baked by this cache, in order (tests and stats read it)
+        self.computed = []  # keys baked by this cache, in order (tests and stats read it)
 
     def get(self, brdf, env, diameter, lobe_samples=64, seed=0):
         """(radiance (D, D, 3), coverage (D, D), key), baking only on a miss."""
@@ -105,8 +106,12 @@ def _read_bake(path, diameter):
             rgb, cov = np.asarray(z["radiance"]), np.asarray(z["coverage"])
     except Exception:  # noqa: BLE001 - a damaged zip raises many kinds; it is only a miss
         return None
-    if rgb.shape != (diameter, diameter, 3) or cov.shape != (diameter, diameter) or rgb.dtype.kind != "f" \
-            or not np.isfinite(rgb).all():
+    if (
+        rgb.shape != (diameter, diameter, 3)
+        or cov.shape != (diameter, diameter)
+        or rgb.dtype.kind != "f"
+        or not np.isfinite(rgb).all()
+    ):
         return None
     return rgb, cov
 

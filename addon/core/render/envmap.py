@@ -35,8 +35,10 @@ def check_radiance(pixels, name="environment"):
         raise ValueError(f"{name}: the map holds no light (every value is zero or negative)")
     neg = float(np.minimum(a, 0.0).sum(dtype=np.float64))
     if -neg > NEGATIVE_SHARE * pos:
-        raise ValueError(f"{name}: the map holds {int((a < 0).sum())} negative values (down to {float(a.min()):.3g}, "
-                         f"{-neg / pos:.1%} of its light); radiance cannot be negative")
+        raise ValueError(
+            f"{name}: the map holds {int((a < 0).sum())} negative values (down to {float(a.min()):.3g}, "
+            f"{-neg / pos:.1%} of its light); radiance cannot be negative"
+        )
 
 
 class Environment:
@@ -52,7 +54,7 @@ class Environment:
         self.height, self.width = a.shape[:2]
         h, w = self.height, self.width
         elev_edges = HALF_PI - np.arange(h + 1) * (math.pi / h)
-        self.z_edges = np.sin(elev_edges)                      # decreasing, z_edges[0] = 1
+        self.z_edges = np.sin(elev_edges)  # decreasing, z_edges[0] = 1
         self.row_omega = (2.0 * math.pi / w) * (self.z_edges[:-1] - self.z_edges[1:])  # solid angle per texel
         self.flat = self.pixels.reshape(-1, 3)
         self._key = None
@@ -171,7 +173,7 @@ class Environment:
             self._build_mips()
         u, v = direction_to_uv(d)
         cos_el = np.sqrt(np.maximum(1.0 - np.asarray(d)[:, 2] ** 2, 1e-4))
-        texel0 = (2.0 * math.pi ** 2) / (self.width * self.height) * cos_el
+        texel0 = (2.0 * math.pi**2) / (self.width * self.height) * cos_el
         lam = 0.5 * np.log2(np.maximum(np.asarray(solid_angle, float) / texel0, 1e-30))
         lam = np.clip(lam, 0.0, len(self._mips) - 1)
         out = np.empty((len(u), 3))
@@ -207,7 +209,7 @@ class Environment:
         x1 = (x0 + 1) % w
         y0 = y0.astype(np.int64)
         y1 = np.minimum(y0 + 1, h - 1)
-        return ((1 - fy) * ((1 - fx) * a[y0, x0] + fx * a[y0, x1]) + fy * ((1 - fx) * a[y1, x0] + fx * a[y1, x1]))
+        return (1 - fy) * ((1 - fx) * a[y0, x0] + fx * a[y0, x1]) + fy * ((1 - fx) * a[y1, x0] + fx * a[y1, x1])
 
     # --- irradiance ------------------------------------------------------------------------
     def _build_irradiance(self, max_bright=8192, bright_share=0.9, coarse_width=128):
@@ -219,7 +221,7 @@ class Environment:
         energy = lum * omega
         top = np.argsort(-energy)[:max_bright]
         share = np.cumsum(energy[top]) / max(float(energy.sum()), 1e-300)
-        bright = top[:int(np.searchsorted(share, bright_share)) + 1] if energy.sum() > 0 else top[:0]
+        bright = top[: int(np.searchsorted(share, bright_share)) + 1] if energy.sum() > 0 else top[:0]
         rest = self.pixels.copy().reshape(-1, 3)
         rest[bright] = 0.0
         rest = rest.reshape(self.height, self.width, 3)
@@ -262,10 +264,10 @@ class Environment:
         dirs_t = np.ascontiguousarray(dirs.T)
         normals = np.asarray(normals, np.float32)
         out = np.empty((len(normals), 3))
-        for s in range(0, len(normals), chunk):   # small blocks stay in cache
-            c = normals[s:s + chunk] @ dirs_t
+        for s in range(0, len(normals), chunk):  # small blocks stay in cache
+            c = normals[s : s + chunk] @ dirs_t
             np.maximum(c, 0.0, out=c)
-            out[s:s + chunk] = c @ power
+            out[s : s + chunk] = c @ power
         return out
 
 
@@ -277,7 +279,7 @@ class BrightTexels:
         self.env = env
         self.texels = np.asarray(texels, np.int64)
         self.size = len(self.texels)
-        self.slot = np.full(env.height * env.width, -1, np.int64)   # flat texel -> position in the set
+        self.slot = np.full(env.height * env.width, -1, np.int64)  # flat texel -> position in the set
         self.slot[self.texels] = np.arange(self.size)
         e = np.asarray(energy, float)
         self.p = e / e.sum() if self.size and e.sum() > 0 else np.full(self.size, 1.0 / max(self.size, 1))

@@ -53,6 +53,7 @@ def _measure(theta, phi):
 
 # --- the bake ---------------------------------------------------------------------------------
 
+
 def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None, cosine_share=None):
     """Bake one sphere: returns (radiance (D, D, 3), coverage (D, D)), rows top first.
 
@@ -97,11 +98,11 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
     coverage = np.zeros((d, d))
     per = max(1, CHUNK // (k + kb))
     for s in range(0, len(aa), per):
-        a, b = aa[s:s + per], bb[s:s + per]
+        a, b = aa[s : s + per], bb[s : s + per]
         if kb:
             choice = block_choice[b // 2, a // 2]
         # BRDF-sampled directions: the residual (prefiltered) and their share of the lights
-        ua = (pts_a[None] + shift_a[s:s + per, None]) % 1.0
+        ua = (pts_a[None] + shift_a[s : s + per, None]) % 1.0
         inside, u, t, bt, n, theta_o, cov = _texel_samples(d, a, b, ua)
         theta, phi, q = _brdf_directions(brdf, theta_o, u[:, 2], u[:, 3], beta)
         ok = np.isfinite(theta) & inside
@@ -109,7 +110,7 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
         meas = _measure(theta, phi)
         dirs = _to_world(theta, phi, t, bt, n)
         f = brdf.evaluate(theta, phi, theta_o) - brdf.kd[None, :]
-        footprint = np.cos(phi) / (k * q)          # sr covered by one of k samples (dw = cos p dt dp)
+        footprint = np.cos(phi) / (k * q)  # sr covered by one of k samples (dw = cos p dt dp)
         g = f * np.where(ok, meas, 0.0)[:, None]
         contrib = g * residual.lookup_filtered(dirs, footprint) / (k * q)[:, None]
         if bright.size:
@@ -117,12 +118,12 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
                 lb, pb = clusters.lookup_pdf(choice, np.repeat(np.arange(len(a)), k), dirs)
             else:
                 lb, pb = bright.lookup_pdf(dirs)
-            w = k * q + kb * pb * np.cos(phi)      # both densities per d theta d phi
+            w = k * q + kb * pb * np.cos(phi)  # both densities per d theta d phi
             contrib += g * lb / w[:, None]
         acc = contrib.reshape(len(a), k, 3).sum(axis=1)
         if kb:
             # light-sampled directions
-            ub = (pts_b[None] + shift_b[s:s + per, None]) % 1.0
+            ub = (pts_b[None] + shift_b[s : s + per, None]) % 1.0
             inside, u, t, bt, n, theta_o, _ = _texel_samples(d, a, b, ub)
             dirs, pb = clusters.sample(choice, np.repeat(np.arange(len(a)), kb), u[:, 2], u[:, 3], u[:, 4])
             lx, ly, lz = np.sum(dirs * t, 1), np.sum(dirs * bt, 1), np.sum(dirs * n, 1)
@@ -188,6 +189,7 @@ def _brdf_density(brdf, theta, phi, theta_o, beta):
 
 # --- the reference ---------------------------------------------------------------------------
 
+
 def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse_grid=4):
     """Converged estimate for one sphere: (premultiplied radiance (D, D, 3), coverage).
 
@@ -204,11 +206,12 @@ def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse
     bb, aa = np.nonzero(touched_texels(d))
     total = np.zeros((d, d, 3))
     hits = np.zeros((d, d))
-    spec_on = spp > 0 and bool(np.any(brdf.lobe_weight(np.radians(np.arange(0.0, 90.0, 5.0))) > 0)
-                                   or brdf.kind == "table")
+    spec_on = spp > 0 and bool(
+        np.any(brdf.lobe_weight(np.radians(np.arange(0.0, 90.0, 5.0))) > 0) or brdf.kind == "table"
+    )
     per = max(1, CHUNK // max(spp, 1))
     for s in range(0, len(aa) if spec_on else 0, per):
-        a, b = aa[s:s + per], bb[s:s + per]
+        a, b = aa[s : s + per], bb[s : s + per]
         pa, pb = np.repeat(a, spp), np.repeat(b, spp)
         u = rng.random((len(pa), 6))
         x, z = texel_positions(d, pa, pb, u[:, 0], u[:, 1])
@@ -226,7 +229,7 @@ def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse
             th, ph = brdf.sample(theta_o[lb], uu[lb, 3], uu[lb, 4])
             below = ~np.isfinite(th)
             d_l = _to_world(np.where(below, 0.0, th), ph, t[lb], bt[lb], n[lb])
-            d_l[below] = -n[lb][below]           # below the horizon: contributes nothing
+            d_l[below] = -n[lb][below]  # below the horizon: contributes nothing
             dirs[lb] = d_l
         cs = strategy == 2
         if cs.any():
@@ -237,8 +240,11 @@ def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse
         theta = np.arctan2(lx, np.maximum(lz, 1e-300))
         phi = np.arcsin(np.clip(ly, -1.0, 1.0))
         cp = np.cos(phi)
-        pdf = (c_env * env.pdf(dirs) + c_cos * np.maximum(lz, 0.0) / math.pi
-               + c_lobe * brdf.pdf(theta, phi, theta_o) / np.maximum(cp, 1e-300))
+        pdf = (
+            c_env * env.pdf(dirs)
+            + c_cos * np.maximum(lz, 0.0) / math.pi
+            + c_lobe * brdf.pdf(theta, phi, theta_o) / np.maximum(cp, 1e-300)
+        )
         f = brdf.evaluate(theta, phi, theta_o) - brdf.kd[None, :]
         w = np.where(above, lz / np.maximum(pdf, 1e-300), 0.0)
         np.add.at(total.reshape(-1, 3), pb[sel] * d + pa[sel], f * env.lookup(dirs) * w[:, None])
@@ -249,7 +255,7 @@ def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse
     jx, jy = np.meshgrid(off, off)
     jx, jy = jx.ravel(), jy.ravel()
     for s in range(0, len(aa), max(1, 4096 // (g * g))):
-        a, b = aa[s:s + 4096 // (g * g)], bb[s:s + 4096 // (g * g)]
+        a, b = aa[s : s + 4096 // (g * g)], bb[s : s + 4096 // (g * g)]
         x, z = texel_positions(d, a[:, None], b[:, None], jx[None, :], jy[None, :])
         inside, n, _ = sphere_points(x.ravel(), z.ravel())
         inside = inside.reshape(x.shape)
@@ -262,6 +268,7 @@ def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse
 
 
 # --- whole images -----------------------------------------------------------------------------
+
 
 def render_reference(layout, brdfs, env, spp=1024, seed=0):
     """(H, W, 4) premultiplied RGBA of the row of spheres, converged by Monte Carlo."""

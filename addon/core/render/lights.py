@@ -17,7 +17,7 @@ import numpy as np
 from ..geometry import HALF_PI
 from .envmap import _direction
 
-POWER_SHARE = 0.15          # the defensive share drawn by power alone
+POWER_SHARE = 0.15  # the defensive share drawn by power alone
 
 
 def light_clusters(bright, count=32):
@@ -40,7 +40,7 @@ class LightClusters:
         label, axes = _kmeans(dirs, power, min(int(count), bright.size), iterations, seed)
         self.count = len(axes)
         self.axes = axes
-        self.label = label                                          # slot -> cluster
+        self.label = label  # slot -> cluster
         self.power = np.bincount(label, weights=power, minlength=self.count)
         self.share = power / np.maximum(self.power[label], 1e-300)  # a slot's share of its cluster
         # the cone around each axis that holds its texels whole (plus a texel's half diagonal)
@@ -69,8 +69,10 @@ class LightClusters:
         it errs high."""
         st, ct = np.sin(theta_o), np.cos(theta_o)
         peak = np.clip(brdf.lobes.at(theta_o)[0], -HALF_PI, HALF_PI)
-        targets = (-st[:, None] * t + ct[:, None] * n,                      # the mirror direction
-                   np.sin(peak)[:, None] * t + np.cos(peak)[:, None] * n)   # the lobe's peak
+        targets = (
+            -st[:, None] * t + ct[:, None] * n,  # the mirror direction
+            np.sin(peak)[:, None] * t + np.cos(peak)[:, None] * n,
+        )  # the lobe's peak
         spread = np.broadcast_to(np.asarray(spread, float), (len(n),))
         # a turn of the normal by s turns the mirror direction by up to 2 s
         reach = self.half_angle[None, :] + 2.0 * spread[:, None]
@@ -108,7 +110,9 @@ class LightClusters:
         env = self.bright.env
         row, col = np.divmod(self.bright.texels[slot], env.width)
         zt = env.z_edges
-        d = _direction((col + np.asarray(u2, float)) / env.width, zt[row] + np.asarray(u3, float) * (zt[row + 1] - zt[row]))
+        d = _direction(
+            (col + np.asarray(u2, float)) / env.width, zt[row] + np.asarray(u3, float) * (zt[row + 1] - zt[row])
+        )
         return d, p_c * self.share[slot] / self.bright.omega[slot]
 
     def lookup_pdf(self, weights, texel, d):
@@ -145,13 +149,13 @@ class LightClusters:
         q = brdf.pdf(theta.ravel(), phi.ravel(), np.repeat(theta_o, w.shape[1]))
         return (q / np.maximum(np.cos(phi.ravel()), 1e-6)).reshape(theta.shape)
 
-
     @staticmethod
     def _local(w, t, b, n):
         """View-centred (theta, phi) of world directions w (T, K, 3); below the horizon they
         are put on it."""
         lx, ly, lz = (np.einsum("tkc,tc->tk", w, v) for v in (t, b, n))
         return np.arctan2(lx, np.maximum(lz, 1e-6)), np.arcsin(np.clip(ly, -1.0, 1.0))
+
 
 def _kmeans(dirs, power, k, iterations, seed):
     """Spherical k-means weighted by power, from a seeded draw by power: (labels, unit axes),

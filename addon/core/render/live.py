@@ -13,8 +13,8 @@ import os
 
 import numpy as np
 
-FINAL_SAMPLES = 128        # Build Preview's bake: within 5 % per pixel on the near-mirror (BENCHMARKS.md)
-LIVE_DIAMETER_DIV = 4      # the first live image: a quarter of the sphere's resolution
+FINAL_SAMPLES = 128  # Build Preview's bake: within 5 % per pixel on the near-mirror (BENCHMARKS.md)
+LIVE_DIAMETER_DIV = 4  # the first live image: a quarter of the sphere's resolution
 LIVE_SAMPLES = 16
 
 
@@ -34,7 +34,7 @@ def _profiles_key(prof, fit, mode):
     return h.hexdigest()
 
 
-_REGIONS = {}     # the reachable region of the material being dragged: once, not per move
+_REGIONS = {}  # the reachable region of the material being dragged: once, not per move
 
 
 def region_for(prof, fit, mode):
@@ -49,7 +49,7 @@ def region_for(prof, fit, mode):
     return _REGIONS[key]
 
 
-_TABLES = {}      # (path, mtime, size) -> MerlTable: the source stays in memory between drags
+_TABLES = {}  # (path, mtime, size) -> MerlTable: the source stays in memory between drags
 
 
 def source_table(path):

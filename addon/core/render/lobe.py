@@ -31,6 +31,7 @@ MAX_S = _truncated.MAX_S
 
 # --- truncated Gaussians on [-pi/2, pi/2] ---------------------------------------------------
 
+
 def _oriented(m, s):
     """Standardized bounds, mirrored when the interval lies mostly above the mean.
 
@@ -78,6 +79,7 @@ def truncated_params(mean, var, iters=40):
 
 # --- lobes per view -----------------------------------------------------------------------------
 
+
 @dataclass
 class LobeTable:
     """Per-view lobe parameters on a grid of theta_o: untruncated (m_t, s_t) for theta and
@@ -105,11 +107,15 @@ class LobeTable:
         t = np.clip(np.asarray(theta_o, float), self.theta_o[0], self.theta_o[-1])
         if len(self.theta_o) == 1:
             return (np.full(t.shape, self.m_t[0]), np.full(t.shape, self.s_t[0]), np.full(t.shape, self.s_p[0]))
-        return (np.interp(t, self.theta_o, self.m_t), np.interp(t, self.theta_o, self.s_t),
-                np.interp(t, self.theta_o, self.s_p))
+        return (
+            np.interp(t, self.theta_o, self.m_t),
+            np.interp(t, self.theta_o, self.s_t),
+            np.interp(t, self.theta_o, self.s_p),
+        )
 
 
 # --- BRDFs ----------------------------------------------------------------------------------------
+
 
 def _rgb(v):
     return tuple(float(x) for x in np.broadcast_to(np.asarray(v, float), (3,)))
@@ -152,21 +158,34 @@ class MomentParams:
             z = (0.0, 0.0, 0.0)
             return cls(z, z, z, fit.get("theta0", 0.785), fit.get("theta1", 1.31), 0.0, LAMBERT_VARIANCE, kd)
         pick = [ch.get(c, {}) for c in "rgb"]
-        return cls(tuple(p.get("alpha_b", 0.0) for p in pick), tuple(p.get("alpha1", 0.0) for p in pick),
-                   tuple(p.get("m1", 0.0) for p in pick), float(fit["theta0"]), float(fit["theta1"]),
-                   float(fit["mu_slope"]), float(np.clip(fit["sigma2"], MIN_SIGMA2, LAMBERT_VARIANCE)), kd)
+        return cls(
+            tuple(p.get("alpha_b", 0.0) for p in pick),
+            tuple(p.get("alpha1", 0.0) for p in pick),
+            tuple(p.get("m1", 0.0) for p in pick),
+            float(fit["theta0"]),
+            float(fit["theta1"]),
+            float(fit["mu_slope"]),
+            float(np.clip(fit["sigma2"], MIN_SIGMA2, LAMBERT_VARIANCE)),
+            kd,
+        )
 
-    def edited(self, strength=1.0, colour=(1.0, 1.0, 1.0), grazing_boost=1.0, mu_slope=None,
-               sigma2=None) -> "MomentParams":
+    def edited(
+        self, strength=1.0, colour=(1.0, 1.0, 1.0), grazing_boost=1.0, mu_slope=None, sigma2=None
+    ) -> "MomentParams":
         """The sliders applied to the model, exactly as the editing engine defines the energy:
         alpha' = strength colour (alpha_b + boost (alpha - alpha_b)). The Hermite curve is
         linear in its end values and slopes, so this is again a curve of the same form."""
         k = np.asarray(colour, float) * float(strength)
         b = float(grazing_boost)
         ab, a1, m1 = (np.asarray(v) for v in (self.alpha_b, self.alpha1, self.m1))
-        return replace(self, alpha_b=tuple(k * ab), alpha1=tuple(k * ((1 - b) * ab + b * a1)), m1=tuple(k * b * m1),
-                       mu_slope=self.mu_slope if mu_slope is None else float(mu_slope),
-                       sigma2=self.sigma2 if sigma2 is None else float(sigma2))
+        return replace(
+            self,
+            alpha_b=tuple(k * ab),
+            alpha1=tuple(k * ((1 - b) * ab + b * a1)),
+            m1=tuple(k * b * m1),
+            mu_slope=self.mu_slope if mu_slope is None else float(mu_slope),
+            sigma2=self.sigma2 if sigma2 is None else float(sigma2),
+        )
 
     def energy(self, theta_o):
         """alpha per channel at the views, (n, 3); never negative."""
@@ -314,10 +333,10 @@ class HalfVectorSampler:
         tot = w.sum(axis=1, keepdims=True)
         uniform = self.ring / self.ring.sum()
         p = np.where(tot > 0, (1.0 - self.FLOOR) * w / np.where(tot > 0, tot, 1.0) + self.FLOOR * uniform, uniform)
-        self.p = p / p.sum(axis=1, keepdims=True)                     # (rows, rings)
+        self.p = p / p.sum(axis=1, keepdims=True)  # (rows, rings)
         self.cdf = np.cumsum(self.p, axis=1)
         self.cdf[:, -1] = 1.0
-        self._flat = (self.cdf + np.arange(n_rows)[:, None]).ravel()   # rows offset: one searchsorted
+        self._flat = (self.cdf + np.arange(n_rows)[:, None]).ravel()  # rows offset: one searchsorted
 
     def _row(self, theta_o):
         return np.clip((np.asarray(theta_o, float) / HALF_PI * self.rows).astype(np.int64), 0, self.rows - 1)
@@ -329,7 +348,7 @@ class HalfVectorSampler:
         k = np.searchsorted(self._flat, j + u1, side="right") - j * self.n
         i = np.clip(k, 0, self.n - 1)
         lo = np.where(i > 0, self.cdf[j, np.maximum(i - 1, 0)], 0.0)
-        r = np.clip((u1 - lo) / np.maximum(self.p[j, i], 1e-300), 0.0, 1.0)     # reuse the remainder
+        r = np.clip((u1 - lo) / np.maximum(self.p[j, i], 1e-300), 0.0, 1.0)  # reuse the remainder
         cos_h = self.cos_edges[i] + r * (self.cos_edges[i + 1] - self.cos_edges[i])
         sin_h = np.sqrt(np.maximum(1.0 - cos_h * cos_h, 0.0))
         a = 2.0 * math.pi * np.asarray(u2, float)

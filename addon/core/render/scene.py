@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-VIEW = np.array([0.0, -1.0, 0.0])   # toward the camera
+VIEW = np.array([0.0, -1.0, 0.0])  # toward the camera
 
 
 @dataclass(frozen=True)
@@ -23,9 +23,9 @@ class Layout:
     width: int
     height: int
     count: int
-    diameter: int          # pixels across one sphere
-    lefts: tuple           # left pixel edge of each sphere's bounding square
-    top: int               # top pixel edge (the same for all)
+    diameter: int  # pixels across one sphere
+    lefts: tuple  # left pixel edge of each sphere's bounding square
+    top: int  # top pixel edge (the same for all)
 
     @property
     def pixel(self) -> float:
@@ -46,7 +46,7 @@ class Layout:
         mask = np.zeros((self.height, self.width), bool)
         inner = interior_texels(self.diameter)
         for left in self.lefts:
-            mask[self.top:self.top + self.diameter, left:left + self.diameter] |= inner
+            mask[self.top : self.top + self.diameter, left : left + self.diameter] |= inner
         return mask
 
     def compose(self, tiles) -> np.ndarray:
@@ -54,7 +54,7 @@ class Layout:
         c = np.asarray(tiles[0]).shape[2]
         out = np.zeros((self.height, self.width, c), np.float32)
         for left, tile in zip(self.lefts, tiles):
-            out[self.top:self.top + self.diameter, left:left + self.diameter] = tile
+            out[self.top : self.top + self.diameter, left : left + self.diameter] = tile
         return out
 
 
@@ -66,7 +66,7 @@ def sphere_layout(width: int, height: int | None = None, count: int = 2, fill: f
     cell = width / count
     d = int(fill * min(cell, height))
     if (height - d) % 2:
-        d -= 1                       # same parity as the height: the row is centred on z = 0
+        d -= 1  # same parity as the height: the row is centred on z = 0
     d = max(d, 2)
     lefts = tuple(int(round(k * cell + 0.5 * (cell - d))) for k in range(count))
     return Layout(width, height, count, d, lefts, (height - d) // 2)
@@ -81,7 +81,7 @@ def texel_positions(diameter, a, b, jx, jy):
 def interior_texels(diameter) -> np.ndarray:
     """(D, D) True for texels whose whole square lies inside the unit disk."""
     e = np.arange(diameter + 1) * (2.0 / diameter) - 1.0
-    far = np.maximum(e[:-1] ** 2, e[1:] ** 2)          # the corner farthest from the centre
+    far = np.maximum(e[:-1] ** 2, e[1:] ** 2)  # the corner farthest from the centre
     return (far[None, :] + far[:, None]) < 1.0
 
 
