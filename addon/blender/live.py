@@ -52,21 +52,9 @@ def label_image(rgba, layout, labels):
 
 def write_preview_image(mat, rgba):
     """The preview as a float image (linear radiance; ``rgba`` rows top first), kept in the .blend."""
-    h, w = rgba.shape[:2]
-    name = preview_image_name(mat)
-    img = bpy.data.images.get(name)
-    if img is not None and (tuple(img.size) != (w, h) or not img.is_float):
-        bpy.data.images.remove(img)
-        img = None
-    if img is None:
-        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True)
-    img.pixels.foreach_set(np.ascontiguousarray(rgba[::-1], np.float32).ravel())
-    img.update()
-    img.use_fake_user = True
-    if hasattr(img, "preview_ensure"):
-        img.preview_ensure()
-        img.preview.reload()
-    return img
+    from .state import keep_image
+
+    return keep_image(preview_image_name(mat), rgba, float_buffer=True)
 
 
 def read_preview_image(mat):

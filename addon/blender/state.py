@@ -386,6 +386,25 @@ def _slider_moved(state):
 PLOT_SIZE = (900, 780)
 
 
+def keep_image(name, rgba, float_buffer=False):
+    """The image ``name`` holding ``rgba`` ((H, W, 4), row 0 on top), kept in the .blend (fake
+    user) with a fresh thumbnail for the panel; made anew when its size or kind changed."""
+    h, w = rgba.shape[:2]
+    img = bpy.data.images.get(name)
+    if img is not None and (tuple(img.size) != (w, h) or bool(img.is_float) != float_buffer):
+        bpy.data.images.remove(img)
+        img = None
+    if img is None:
+        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=float_buffer)
+    img.pixels.foreach_set(np.ascontiguousarray(rgba[::-1], np.float32).ravel())  # Blender's rows start at the bottom
+    img.update()
+    img.use_fake_user = True
+    if hasattr(img, "preview_ensure"):
+        img.preview_ensure()
+        img.preview.reload()
+    return img
+
+
 def plot_image(mat, prof=None, fit=None, edited=None, width=PLOT_SIZE[0], height=PLOT_SIZE[1]):
     """The panel's profile plot for ``mat``: an image named after the material, kept in the
     .blend (fake user; redrawn from the stored profiles when a file is opened)."""
@@ -399,19 +418,7 @@ def plot_image(mat, prof=None, fit=None, edited=None, width=PLOT_SIZE[0], height
         prof, fit or state.fit(), edited if edited is not None else state.edited_profiles(), width, height
     )
     state.plot_caption = "\n".join(f"{name}: {lo:.3g} to {hi:.3g}" for name, lo, hi in charts)
-    name = f"BRDF Moments plot: {mat.name}"
-    img = bpy.data.images.get(name)
-    if img is None or tuple(img.size) != (width, height):
-        if img is not None:
-            bpy.data.images.remove(img)
-        img = bpy.data.images.new(name, width, height, alpha=True, float_buffer=False)
-    img.pixels.foreach_set(np.ascontiguousarray(px[::-1]).ravel())  # Blender's rows start at the bottom
-    img.update()
-    img.use_fake_user = True
-    if hasattr(img, "preview_ensure"):
-        img.preview_ensure()
-        img.preview.reload()
-    return img
+    return keep_image(f"BRDF Moments plot: {mat.name}", px)
 
 
 REGION_PLOT_SIZE = (600, 420)
@@ -435,20 +442,7 @@ def region_image(mat):
     px = region_plot(
         region, slider, used, correlation_a=state.correlation_a, width=REGION_PLOT_SIZE[0], height=REGION_PLOT_SIZE[1]
     )
-    name = region_image_name(mat)
-    w, h = REGION_PLOT_SIZE
-    img = bpy.data.images.get(name)
-    if img is None or tuple(img.size) != (w, h):
-        if img is not None:
-            bpy.data.images.remove(img)
-        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=False)
-    img.pixels.foreach_set(np.ascontiguousarray(px[::-1]).ravel())
-    img.update()
-    img.use_fake_user = True
-    if hasattr(img, "preview_ensure"):
-        img.preview_ensure()
-        img.preview.reload()
-    return img
+    return keep_image(region_image_name(mat), px)
 
 
 CLASSES = (BRDFMomentsMaterial,)
