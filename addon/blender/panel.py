@@ -53,7 +53,7 @@ def _draw_region(layout, mat, width):
     col = layout.column(align=True)
     point = state.requested_point()
     s2 = point[0][1] if point else state.sigma2
-    lo, hi = region._range_at(min(max(s2, region.sigma2_min), region.sigma2_max))
+    lo, hi = region.mu_range(min(max(s2, region.sigma2_min), region.sigma2_max))
     col.label(
         text=f"Reachable: σ̃² {region.sigma2_min:.3g} to {region.sigma2_max:.3g}; μ̃ {lo:+.3f} to {hi:+.3f} at this σ̃²",
         icon="INFO",

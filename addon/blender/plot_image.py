@@ -251,7 +251,7 @@ def region_plot(region, slider=None, used=None, correlation_a=None, width=600, h
         s2 = 10.0 ** (y_lo + (bottom - row) / (bottom - top) * (y_hi - y_lo))
         if not region.sigma2_min <= s2 <= region.sigma2_max:
             continue
-        lo, hi = region._range_at(s2)
+        lo, hi = region.mu_range(s2)
         if not (np.isfinite(lo) and np.isfinite(hi)):
             continue
         a, b = (int(round(float(v))) for v in (px(lo, s2)[0], px(hi, s2)[0]))

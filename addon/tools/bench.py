@@ -644,7 +644,7 @@ def _edit_requests(fit, region):
         ("α ×0.8", EditTargets(strength=0.8)),
         ("colour", EditTargets(colour=(1.0, 0.7, 0.4))),
     ]
-    lo, hi = region._range_at(s2)
+    lo, hi = region.mu_range(s2)
     for d in (+0.05, -0.05):
         if np.isfinite(lo):
             m = float(np.clip(mu + d, lo, hi))

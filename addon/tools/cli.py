@@ -236,7 +236,7 @@ def cmd_edit(args):
     print(f"achieved mean slope {mu}  variance {s2}")
     print("largest directional albedo (r, g, b): " + ", ".join(f"{v:.4f}" for v in res.max_albedo))
     if res.region is not None:
-        lo, hi = res.region._range_at(res.target_sigma2)
+        lo, hi = res.region.mu_range(res.target_sigma2)
         print(
             f"reachable: variance {res.region.sigma2_min:.4g} .. {res.region.sigma2_max:.4g}; "
             f"mean slope {lo:+.3f} .. {hi:+.3f} at variance {res.target_sigma2:.4g}"

@@ -87,10 +87,11 @@ class ReachableRegion:
     def contains(self, mu, s2) -> bool:
         if not (self.sigma2_min <= s2 <= self.sigma2_max):
             return False
-        lo, hi = self._range_at(s2)
+        lo, hi = self.mu_range(s2)
         return bool(np.isfinite(lo) and lo - 1e-9 <= mu <= hi + 1e-9)
 
-    def _range_at(self, s2):
+    def mu_range(self, s2):
+        """(lowest, highest) reachable mean slope at variance ``s2`` (interpolated in log s2)."""
         x = np.log(self.sigma2)
         ok = np.isfinite(self.mu_min)
         if not ok.any():
