@@ -131,7 +131,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         state.achieved_sigma2 = finite(res.achieved_sigma2)
         state.max_albedo = [finite(v) for v in res.max_albedo]
         state.edit_warnings = "\n".join(res.warnings)
-        plot_image(mat, prof, fit, res.profiles)
+        plot_image(mat, prof, fit, res.profiles, later=True)
         note = ""
         if principled is not None:
             state.principled_data = json.dumps(principled.as_dict())

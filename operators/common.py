@@ -78,6 +78,6 @@ def store_analysis(mat, path, result) -> str:
         state.edited_profiles_data = ""
         state.edit_warnings = ""
         state.principled_data = ""
-    plot_image(mat, prof, fit, edited=None if again else False)
-    region_image(mat)
+    plot_image(mat, prof, fit, edited=None if again else False, later=True)
+    region_image(mat, later=True)
     return f"Analysed {name}: μ̃ {state.fit_mu_slope:+.3f}, σ̃² {state.fit_sigma2:.4f}"

@@ -338,6 +338,7 @@ def test_the_preview_sphere_is_closed_round_and_faces_out(scene, bpy):
         for a, b in zip(vs, vs[1:] + vs[:1]):
             edges[frozenset((a, b))] = edges.get(frozenset((a, b)), 0) + 1
     assert set(edges.values()) == {2} and n_v - len(edges) + n_f == 2
+    assert len(mesh.edges) == len(edges) and not mesh.validate()  # validate: True if it had to fix something
     normals, centres = np.empty(3 * n_f), np.empty(3 * n_f)
     mesh.polygons.foreach_get("normal", normals)
     mesh.polygons.foreach_get("center", centres)

@@ -245,25 +245,44 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
     runs in a child process, so the GIL stays free: before that, the thread saw gaps of
     0.7-1.3 s here. The main loop's own gaps are Blender drawing in software GL; on a loaded
     machine they reach seconds with no job at all, so they are bounded by the idle control
-    measured in the same session rather than by a fixed figure (the 0.2 s target is checked
-    on the GIL, the part the jobs control)."""
+    measured in the same session rather than by a fixed figure. The 0.2 s target is checked on
+    what the add-on controls: the GIL, and the add-on's own runs of Python on the main thread
+    (sampled every 10 ms by the same thread; a stall's stack says whose it was)."""
     data, _, _, _ = lane
     jobs, idle = data["jobs"], data["idle"]
     assert {j["label"] for j in jobs} >= {"Analysing", "Re-synthesizing"}
     print(
-        f"\n{'idle control':>16} {'':>9}: {idle['end'] - idle['start']:6.1f} s, main loop {idle['largest_gap']:.3f} s, "
+        f"\n{'idle control':>16} {'':>9}: {idle['end'] - idle['start']:6.1f} s, main loop {idle['largest_gap'] or idle['end'] - idle['start']:.3f} s, "
         f"GIL {idle['largest_gil_gap']:.3f} s, load {idle['loadavg'][0]:.1f}"
     )
     for j in jobs:
         print(
-            f"{j['label']:>16} {j['outcome']:>9}: {j['seconds']:6.1f} s, main loop {j['largest_gap']:.3f} s, "
-            f"GIL {j['largest_gil_gap']:.3f} s"
+            f"{j['label']:>16} {j['outcome']:>9}: {j['seconds']:6.1f} s, main loop {j['largest_gap'] or 0:.3f} s, "
+            f"GIL {j['largest_gil_gap']:.3f} s, the add-on's Python on the main thread {j['largest_ours']:.3f} s"
         )
+    for st in data.get("stalls", []):
+        where = " <- ".join(reversed(st["stack"])) or "Blender's C code (no Python on the main thread)"
+        who = "the driver's own wait" if st["driver"] else where
+        print(f"  stall {st['length']:.2f} s during {st['job'] or 'no job'}: {who}")
+    print(f"  the add-on's longest main-thread run: {data['ours_longest'][0]:.3f} s at {data['ours_longest'][1]}")
+    for j in jobs:
+        print(
+            f"  {j['label']} {j['outcome']}: longest add-on run {j['largest_ours']:.3f} s at {j['largest_ours_where']}"
+        )
+    for g in data.get("gil_gaps", []):
+        print(
+            f"  GIL held {g['length']:.2f} s; then: "
+            + "; ".join(f"{k}: {' <- '.join(reversed(v))}" for k, v in g["threads"].items())
+        )
+    idle_gap = idle["largest_gap"] or idle["end"] - idle["start"]  # no tick at all: the whole control
     for j in jobs:
         assert j["largest_gil_gap"] < 0.3, j
+        # The add-on's own Python on the main thread (drawing the panel, a job's modal and
+        # finish; plots are drawn in a thread): the 0.2 s target, on the part the add-on controls.
+        assert j["largest_ours"] < 0.2, j
         # No freeze beyond what the same machine shows idle (work on the main thread would
         # give one gap as long as the job: 40-60 s for an Apply here) ...
-        assert j["largest_gap"] < max(2.0, 2.0 * idle["largest_gap"]), (j, idle)
+        assert (j["largest_gap"] or 0.0) < max(2.0, 2.0 * idle_gap), (j, idle)
         # ... and through a long job (an Apply) the main loop keeps turning: 20 ticks a second
         # when quiet, 5-6 at a load of 13 on 2 cores; frozen, it would tick once.
         if j["seconds"] > 30:

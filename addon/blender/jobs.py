@@ -94,6 +94,13 @@ def _in_child(work, conn):
 _LARGE = "large-v1"
 
 
+# Each buffer travels in pieces of at most CHUNK bytes, received into a preallocated array: a
+# receive copies its whole message while holding the GIL (multiprocessing reads a message into
+# a BytesIO, then copies it out), and a zeroed bytearray of the whole size is another pass under
+# the GIL: with 50 MB buffers the windowed lane saw the listening thread hold it for 0.3-0.4 s.
+CHUNK = 1 << 22
+
+
 def send_large(conn, message):
     import pickle
 
@@ -103,12 +110,15 @@ def send_large(conn, message):
     conn.send((_LARGE, len(head), [r.nbytes for r in raws]))
     conn.send_bytes(head)
     for raw in raws:
-        conn.send_bytes(raw)
+        for offset in range(0, raw.nbytes, CHUNK):
+            conn.send_bytes(raw, offset, min(CHUNK, raw.nbytes - offset))
 
 
 def recv_message(conn):
     """The next message from the child: progress tuples as sent, large ones reassembled."""
     import pickle
+
+    import numpy as np
 
     message = conn.recv()
     if not (isinstance(message, tuple) and message and message[0] == _LARGE):
@@ -117,13 +127,13 @@ def recv_message(conn):
     head = conn.recv_bytes(max(head_size, 1))
     buffers = []
     for size in sizes:
-        buf = bytearray(size)
-        if size:
-            got = conn.recv_bytes_into(buf)
-            if got != size:
-                raise EOFError("a result buffer arrived short")
-        else:
-            conn.recv_bytes()
+        buf = np.empty(size, np.uint8)  # not zeroed: every byte is received into it
+        done = 0
+        while done < size:
+            got = conn.recv_bytes_into(buf, done)
+            if got == 0 or got > CHUNK:
+                raise EOFError("a result buffer arrived in a wrong piece")
+            done += got
         buffers.append(buf)
     return pickle.loads(head, buffers=buffers)
 

@@ -6,6 +6,7 @@ file reopens with its profiles even when the 35 MB MERL file is gone.
 
 import base64
 import math
+import threading
 
 import bpy
 import numpy as np
@@ -137,7 +138,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     correlation_a: bpy.props.FloatProperty(
         name="Correlation a",
         default=0.0,
-        update=lambda self, ctx: _slider_moved(self) if self.lock else region_image(self.id_data),
+        update=lambda self, ctx: _slider_moved(self) if self.lock else region_image(self.id_data, later=True),
         description="the quadratic's a in σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12 (fit a set with 'python -m addon fit')",
     )
     mode: bpy.props.EnumProperty(
@@ -365,7 +366,7 @@ def _slider_moved(state):
     only gets new node inputs."""
     if not state.analysed:
         return
-    region_image(state.id_data)
+    region_image(state.id_data, later=True)
     if state.preview_mode == "TABULATED":
         from . import live
 
@@ -405,20 +406,95 @@ def keep_image(name, rgba, float_buffer=False):
     return img
 
 
-def plot_image(mat, prof=None, fit=None, edited=None, width=PLOT_SIZE[0], height=PLOT_SIZE[1]):
+def plot_image(mat, prof=None, fit=None, edited=None, width=PLOT_SIZE[0], height=PLOT_SIZE[1], later=False):
     """The panel's profile plot for ``mat``: an image named after the material, kept in the
-    .blend (fake user; redrawn from the stored profiles when a file is opened)."""
+    .blend (fake user; redrawn from the stored profiles when a file is opened). ``later``: in
+    a window, drawn off the main thread (``draw_later``) and None returned."""
     from .plot_image import profile_plot
 
     state = mat.brdf_moments
     prof = prof or state.profiles()
     if prof is None:
         return None
-    px, charts = profile_plot(
-        prof, fit or state.fit(), edited if edited is not None else state.edited_profiles(), width, height
-    )
-    state.plot_caption = "\n".join(f"{name}: {lo:.3g} to {hi:.3g}" for name, lo, hi in charts)
-    return keep_image(f"BRDF Moments plot: {mat.name}", px)
+    fit = fit or state.fit()
+    edited = edited if edited is not None else state.edited_profiles()
+    name = mat.name
+
+    def caption(charts):
+        m = bpy.data.materials.get(name)
+        if m is not None:
+            m.brdf_moments.plot_caption = "\n".join(f"{n}: {lo:.3g} to {hi:.3g}" for n, lo, hi in charts)
+
+    def draw():
+        return profile_plot(prof, fit, edited, width, height)
+
+    return draw_later(f"BRDF Moments plot: {name}", draw, caption, now=not later)
+
+
+# --- images drawn off the main thread ------------------------------------------------------------
+# The plots are numpy (0.1-0.3 s each in a window on this machine's software-GL Blender): drawn on
+# the main thread after a job, they froze the UI for that long. In a window they are drawn in a
+# thread; a timer then puts the pixels into the image (a few ms). A newer request for the same
+# image supersedes one still drawing.
+
+_DRAW_GEN: dict = {}  # image name -> generation of the latest request
+_DRAWN: list = []  # (image name, generation, pixels, extra, then) from the threads
+_DRAW_PENDING: set = set()  # image names requested and not yet in place
+_DRAW_LOCK = threading.Lock()
+
+
+def drawing() -> bool:
+    """True while an image requested with ``draw_later`` is not in place yet."""
+    return bool(_DRAW_PENDING)
+
+
+def draw_later(name, draw, then=None, now=False):
+    """The image ``name`` from ``draw()`` -> rgba or (rgba, extra); ``then(extra)`` runs on the
+    main thread once it is in place. Drawn at once (and the image returned) headless or with
+    ``now``; else in a thread, returning None."""
+
+    def split(out):
+        return out if isinstance(out, tuple) else (out, None)
+
+    if now or bpy.app.background:
+        px, extra = split(draw())
+        img = keep_image(name, px)
+        if then is not None:
+            then(extra)
+        return img
+    gen = _DRAW_GEN.get(name, 0) + 1
+    _DRAW_GEN[name] = gen
+    _DRAW_PENDING.add(name)
+
+    def run():
+        try:
+            px, extra = split(draw())
+        except Exception as exc:  # noqa: BLE001 - a failed drawing leaves the last image
+            print(f"BRDF Moments: drawing {name}: {type(exc).__name__}: {exc}")
+            px = extra = None
+        with _DRAW_LOCK:
+            _DRAWN.append((name, gen, px, extra, then))
+
+    threading.Thread(target=run, name="brdf_moments: drawing", daemon=True).start()
+    if not bpy.app.timers.is_registered(_place_drawn):
+        bpy.app.timers.register(_place_drawn, first_interval=0.02)
+    return None
+
+
+def _place_drawn():
+    with _DRAW_LOCK:
+        done = list(_DRAWN)
+        _DRAWN.clear()
+    for name, gen, px, extra, then in done:
+        if _DRAW_GEN.get(name) != gen:
+            continue  # superseded: the newer drawing will come
+        _DRAW_PENDING.discard(name)
+        if px is None:
+            continue
+        keep_image(name, px)
+        if then is not None:
+            then(extra)
+    return 0.02 if _DRAW_PENDING else None
 
 
 REGION_PLOT_SIZE = (600, 420)
@@ -428,9 +504,10 @@ def region_image_name(mat):
     return f"BRDF Moments region: {mat.name}"
 
 
-def region_image(mat):
+def region_image(mat, later=False):
     """The reachable-region plot for ``mat`` (kept in the .blend), or None without a region.
-    Redrawn when a slider moves (~30 ms): it shows where the sliders are."""
+    Redrawn when a slider moves (``later``: off the main thread in a window): it shows where
+    the sliders are."""
     from .plot_image import region_plot
 
     state = mat.brdf_moments
@@ -439,10 +516,14 @@ def region_image(mat):
         return None
     point = state.requested_point()
     slider, used = point if point else ((state.mu_slope, state.sigma2), None)
-    px = region_plot(
-        region, slider, used, correlation_a=state.correlation_a, width=REGION_PLOT_SIZE[0], height=REGION_PLOT_SIZE[1]
-    )
-    return keep_image(region_image_name(mat), px)
+    corr = state.correlation_a
+
+    def draw():
+        return region_plot(
+            region, slider, used, correlation_a=corr, width=REGION_PLOT_SIZE[0], height=REGION_PLOT_SIZE[1]
+        )
+
+    return draw_later(region_image_name(mat), draw, now=not later)
 
 
 CLASSES = (BRDFMomentsMaterial,)

@@ -65,9 +65,22 @@ def centre(kind):
     return a.x + a.width // 2, win.height - (a.y + a.height // 2)
 
 
+driver_busy = []  # (start, end): the driver itself blocked the main loop (a waited-for subprocess)
+
+
+def blocking(cmd, timeout):
+    """A subprocess the driver waits for, on the main thread: its time is the driver's, so the
+    main-loop gaps that overlap it are not charged to a job."""
+    t0 = time.monotonic()
+    try:
+        return subprocess.run(cmd, check=True, timeout=timeout)
+    finally:
+        driver_busy.append((t0, time.monotonic()))
+
+
 def xdo(*args, wait=True):
     cmd = ["xdotool", *map(str, args)]
-    return subprocess.run(cmd, check=True, timeout=30) if wait else subprocess.Popen(cmd)
+    return blocking(cmd, 30) if wait else subprocess.Popen(cmd)
 
 
 def key_over(kind, key, wait=True):
@@ -86,7 +99,7 @@ def screenshot(name, wait=True):
     path = os.path.join(OUT, f"{len(result['steps']):02d}-{name}.png")
     cmd = ["import", "-window", "root", path]
     if wait:
-        subprocess.run(cmd, check=True, timeout=60)
+        blocking(cmd, 60)
     else:
         subprocess.Popen(cmd)  # during a job: do not stall the main loop being measured
     return path
@@ -160,7 +173,9 @@ def run_op(op, mode="EXEC_DEFAULT", **kwargs):
 
 
 def wait_jobs():
-    while jobs().running():
+    """Until every job has ended and the images it asked for (drawn off the main thread) are in."""
+    state = sys.modules["brdf_moments.addon.blender.state"]
+    while jobs().running() or getattr(state, "drawing", lambda: False)():
         yield 0.05
 
 
@@ -181,7 +196,9 @@ def session():
     yield 0.3
     screenshot("start")
     record("start")
-    # A control: the main loop with no job, over 3 s, on this (possibly loaded) machine.
+    # A control: the main loop with no job, over 3 s, on this (possibly loaded) machine, once the
+    # redraw after the screenshot has settled.
+    yield 1.0
     t0 = time.monotonic()
     yield 3.0
     result["idle"] = {"start": t0, "end": time.monotonic(), "loadavg": os.getloadavg()}
@@ -334,22 +351,90 @@ def tick():
 
 
 def largest_gap(start, end, series=None):
+    """The longest gap between ticks of ``series`` over [start, end] and the ticks inside; a
+    main-loop gap overlapping the driver's own blocking (``driver_busy``) is not counted."""
+    main = series is None
     series = ticks if series is None else series
     inside = [t for t in series if start <= t <= end + 0.05]
     before = [t for t in series if t < start][-1:]
-    gaps = [b - a for a, b in zip(before + inside, inside)]
+    gaps = [
+        b - a for a, b in zip(before + inside, inside) if not (main and any(s < b and e > a for s, e in driver_busy))
+    ]
     return (max(gaps) if gaps else None), len(inside)
+
+
+def inner_ours(frame):
+    """The add-on's innermost frames on a stack, as 'file:line function' (up to 3)."""
+    out = []
+    while frame is not None and len(out) < 3:
+        if "brdf_moments" in frame.f_code.co_filename:
+            out.append(f"{os.path.basename(frame.f_code.co_filename)}:{frame.f_lineno} {frame.f_code.co_name}")
+        frame = frame.f_back
+    return out
 
 
 def probe():
     """A Python thread that wakes every 10 ms: its gaps are how long another thread (the job's
-    worker) kept the GIL, apart from the main loop's own drawing."""
+    worker) kept the GIL, apart from the main loop's own drawing. It also samples what the main
+    thread is doing when the main loop has not ticked for STALL s: a Python stack (some Python
+    code, ours or the driver's, holds the loop) or none (Blender's own C code: drawing, events)."""
+    main = threading.main_thread().ident
+    sampled = None
+    run_start = None
     while True:
         time.sleep(0.01)
-        probe_ticks.append(time.monotonic())
+        now = time.monotonic()
+        if probe_ticks and now - probe_ticks[-1] > GIL_GAP:
+            # Some thread held the GIL that long; it has just let go: what each thread runs now.
+            names = {t.ident: t.name for t in threading.enumerate()}
+            gil_gaps.append(
+                {
+                    "since": probe_ticks[-1],
+                    "length": now - probe_ticks[-1],
+                    "threads": {
+                        names.get(ident, str(ident)): [
+                            f"{os.path.basename(f.filename)}:{f.lineno} {f.name}"
+                            for f in traceback.extract_stack(fr)[-4:]
+                        ]
+                        for ident, fr in sys._current_frames().items()
+                        if ident != threading.get_ident()
+                    },
+                }
+            )
+        probe_ticks.append(now)
+        # Runs of the add-on's own Python on the main thread (panel drawing, a job's modal and
+        # finish): how long our code, not Blender's drawing, holds the main loop at a time.
+        f = sys._current_frames().get(main)
+        ours_now = False
+        while f is not None and not ours_now:
+            ours_now = "brdf_moments" in f.f_code.co_filename
+            f = f.f_back
+        if ours_now:
+            where = inner_ours(sys._current_frames().get(main))
+            if run_start is None:
+                run_start, run_where = now, where
+        elif run_start is not None:
+            ours_runs.append((run_start, now, run_where))
+            run_start = None
+        last = ticks[-1] if ticks else None
+        if last is None or now - last < STALL or sampled == last:
+            continue
+        sampled = last
+        frame = sys._current_frames().get(main)
+        stack = traceback.extract_stack(frame)[-4:] if frame is not None else []
+        stalls.append(
+            {"since": last, "at": now, "stack": [f"{os.path.basename(f.filename)}:{f.lineno} {f.name}" for f in stack]}
+        )
+        if ours_now:
+            stalls[-1]["ours"] = True
 
 
 probe_ticks = []
+gil_gaps = []  # the probe's gaps over GIL_GAP s, with every thread's stack right after
+GIL_GAP = 0.15
+ours_runs = []  # (start, end) of sampled runs of the add-on's Python on the main thread
+stalls = []  # main-loop stalls over STALL s, with what the main thread ran
+STALL = 0.25
 
 
 def finish():
@@ -358,6 +443,21 @@ def finish():
         result["idle"]["ticks"] = largest_gap(result["idle"]["start"], result["idle"]["end"])[1]
         result["idle"]["largest_gil_gap"] = largest_gap(result["idle"]["start"], result["idle"]["end"], probe_ticks)[0]
     result["loadavg_end"] = os.getloadavg()
+    for st in stalls:
+        after = [t for t in ticks if t > st["since"]]
+        st["length"] = (after[0] if after else time.monotonic()) - st["since"]
+        st["driver"] = any(a < st["since"] + st["length"] and b > st["since"] for a, b in driver_busy)
+        st["job"] = next(
+            (
+                j["label"]
+                for j in jobs().HISTORY
+                if j["start"] <= st["since"] + st["length"] and j["end"] >= st["since"]
+            ),
+            None,
+        )
+    result["stalls"] = stalls
+    result["gil_gaps"] = gil_gaps
+    result["ours_longest"] = max(((b - a, w) for a, b, w in ours_runs), default=(0.0, []))
     for job in jobs().HISTORY:
         gap, n = largest_gap(job["start"], job["end"])
         result["jobs"].append(
@@ -367,6 +467,17 @@ def finish():
                 "ticks": n,
                 "largest_gap": gap,
                 "largest_gil_gap": largest_gap(job["start"], job["end"], probe_ticks)[0],
+                "largest_ours": max(
+                    [
+                        min(b, job["end"]) - max(a, job["start"])
+                        for a, b, _ in ours_runs
+                        if a < job["end"] and b > job["start"]
+                    ],
+                    default=0.0,
+                ),
+                "largest_ours_where": max(
+                    [(b - a, w) for a, b, w in ours_runs if a < job["end"] and b > job["start"]], default=(0.0, [])
+                )[1],
             }
         )
     with open(os.path.join(OUT, "windowed.json"), "w") as fh:

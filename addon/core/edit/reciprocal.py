@@ -195,7 +195,7 @@ class RingSums:
         col = ring_major_index(cells)
         # Rows ring-major too: consecutive rows read the same ring's block of cells.
         key = ((cells // RES_PD) % RES_TD) * self.n_views + view
-        order = np.lexsort((col, key))  # by row, then by cell within a row
+        order = np.argsort(key * N_CELLS + col, kind="stable")  # by row, then by cell within a row
         n = self.n_views * RES_TD
         indptr = np.searchsorted(key[order], np.arange(n + 1)).astype(np.int64)
         idx = col[order].astype(np.int32)
