@@ -90,7 +90,9 @@ def lane(tmp_path_factory):
             shutil.copy(out / name, ARTIFACTS)
     with open(os.path.join(ARTIFACTS, "blender.log"), "w") as fh:
         fh.write(log)
-    assert (out / "windowed.json").is_file(), log[-4000:]
+    faults = out / "faulthandler.txt"
+    crash = faults.read_text() if faults.is_file() else ""
+    assert (out / "windowed.json").is_file(), log[-4000:] + "\n" + crash[-6000:]
     data = json.loads((out / "windowed.json").read_text())
     data["steps"] = {s["name"]: s for s in data["steps"]}
     return data, log, str(gold), str(other)
@@ -282,7 +284,12 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
         assert j["largest_ours"] < 0.2, j
         # No freeze beyond what the same machine shows idle (work on the main thread would
         # give one gap as long as the job: 40-60 s for an Apply here) ...
-        assert (j["largest_gap"] or 0.0) < max(2.0, 2.0 * idle_gap), (j, idle)
+        assert (j["largest_gap"] or 0.0) < max(3.0, 2.5 * idle_gap), (j, idle)
+    # Every main-loop stall during a job that the driver did not cause was Blender's own C code
+    # (software-GL drawing: the same stalls come with no job), never the add-on's Python.
+    for st in data.get("stalls", []):
+        if st["job"] and not st["driver"]:
+            assert not st.get("ours"), st
         # ... and through a long job (an Apply) the main loop keeps turning: 20 ticks a second
         # when quiet, 5-6 at a load of 13 on 2 cores; frozen, it would tick once.
         if j["seconds"] > 30:

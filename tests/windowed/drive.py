@@ -29,6 +29,11 @@ GOLD = argv[argv.index("--gold") + 1]
 OTHER = argv[argv.index("--other") + 1]
 MAT = "Material"  # the default cube's
 os.makedirs(OUT, exist_ok=True)
+# A crash dumps every Python thread's stack here (Blender's own report shows one thread only).
+import faulthandler  # noqa: E402
+
+_FAULTS = open(os.path.join(OUT, "faulthandler.txt"), "w")  # noqa: SIM115 - open for the whole session
+faulthandler.enable(file=_FAULTS, all_threads=True)
 
 result = {"blender": bpy.app.version_string, "steps": [], "jobs": [], "input": {}, "errors": []}
 ticks = []  # main-loop timer ticks (time.monotonic)
@@ -363,11 +368,17 @@ def largest_gap(start, end, series=None):
     return (max(gaps) if gaps else None), len(inside)
 
 
+def is_ours(filename):
+    """A frame of the installed add-on (not of this driver, wherever the repository is)."""
+    mod = sys.modules.get("brdf_moments")
+    return mod is not None and filename.startswith(os.path.dirname(mod.__file__) + os.sep)
+
+
 def inner_ours(frame):
     """The add-on's innermost frames on a stack, as 'file:line function' (up to 3)."""
     out = []
     while frame is not None and len(out) < 3:
-        if "brdf_moments" in frame.f_code.co_filename:
+        if is_ours(frame.f_code.co_filename):
             out.append(f"{os.path.basename(frame.f_code.co_filename)}:{frame.f_lineno} {frame.f_code.co_name}")
         frame = frame.f_back
     return out
@@ -407,7 +418,7 @@ def probe():
         f = sys._current_frames().get(main)
         ours_now = False
         while f is not None and not ours_now:
-            ours_now = "brdf_moments" in f.f_code.co_filename
+            ours_now = is_ours(f.f_code.co_filename)
             f = f.f_back
         if ours_now:
             where = inner_ours(sys._current_frames().get(main))
