@@ -262,6 +262,11 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
             f"{j['label']:>16} {j['outcome']:>9}: {j['seconds']:6.1f} s, main loop {j['largest_gap'] or 0:.3f} s, "
             f"GIL {j['largest_gil_gap']:.3f} s, the add-on's Python on the main thread {j['largest_ours']:.3f} s"
         )
+    for j in jobs:
+        if j.get("marks"):
+            marks = ", ".join(f"{d}/{t} at {m - j['start']:.1f} s" for m, d, t in j["marks"])
+            print(f"  {j['label']} {j['outcome']}: progress {marks}; Blender's own CPU {j.get('blender_cpu')} cores")
+    print(f"  idle: Blender's own CPU {idle.get('blender_cpu')} cores")
     for st in data.get("stalls", []):
         where = " <- ".join(reversed(st["stack"])) or "Blender's C code (no Python on the main thread)"
         who = "the driver's own wait" if st["driver"] else where

@@ -45,7 +45,16 @@ def running() -> list:
 
 def _ended(op, outcome):
     label, mat = _RUNNING.pop(id(op), (op.job_label, ""))
-    HISTORY.append({"label": label, "material": mat, "outcome": outcome, "start": op._started, "end": time.monotonic()})
+    HISTORY.append(
+        {
+            "label": label,
+            "material": mat,
+            "outcome": outcome,
+            "start": op._started,
+            "end": time.monotonic(),
+            "marks": list(getattr(op, "_marks", ())),
+        }
+    )
     del HISTORY[:-50]
 
 
@@ -205,10 +214,13 @@ class BackgroundJob:
         cancel = self._cancel = threading.Event()
         state = self._state = {"done": 0, "total": 1, "result": None, "error": None, "finished": False}
 
+        marks = self._marks = []  # (time, done, total) per progress report: the job's phases
+
         def report_progress(done, total):
             if cancel.is_set():
                 raise Cancelled()
             state["done"], state["total"] = done, max(total, 1)
+            marks.append((time.monotonic(), done, total))
 
         def run():
             from ..core.safeio import run_scope
@@ -239,6 +251,7 @@ class BackgroundJob:
                         kind, *rest = recv_message(receiver)
                         if kind == "progress":
                             state["done"], state["total"] = rest[0], max(rest[1], 1)
+                            marks.append((time.monotonic(), rest[0], rest[1]))
                         else:
                             state["result" if kind == "result" else "error"] = rest[0]
                             break
@@ -288,12 +301,10 @@ class BackgroundJob:
             frac = st["done"] / st["total"]
             context.window_manager.progress_update(int(1000 * frac))
             if context.workspace is not None:
-                text = (
-                    f"BRDF Moments: {self.job_label} {100 * frac:.0f} % ({time.monotonic() - self._started:.0f} s)"
-                    " - Esc to cancel"
-                )
-                # Only when it reads differently: each call redraws the status bar, which
-                # costs ~0.15 s a frame on a software-GL display and slowed jobs fourfold.
+                text = f"BRDF Moments: {self.job_label} {100 * frac:.0f} % - Esc to cancel"
+                # Only when it reads differently (the percentage, a handful of times a job): each
+                # call redraws the status bar, a frame of 0.15 s and more on a software-GL
+                # display, taken from the job's CPU (a seconds counter made it once a second).
                 if text != getattr(self, "_status", None):
                     self._status = text
                     context.workspace.status_text_set(text)

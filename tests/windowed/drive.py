@@ -413,6 +413,8 @@ def probe():
                 }
             )
         probe_ticks.append(now)
+        if not cpu_marks or now - cpu_marks[-1][0] > 0.5:
+            cpu_marks.append((now, time.process_time()))  # Blender's CPU time, all its threads
         # Runs of the add-on's own Python on the main thread (panel drawing, a job's modal and
         # finish): how long our code, not Blender's drawing, holds the main loop at a time.
         f = sys._current_frames().get(main)
@@ -441,11 +443,20 @@ def probe():
 
 
 probe_ticks = []
+cpu_marks = []  # (monotonic, process CPU seconds) every 0.5 s
 gil_gaps = []  # the probe's gaps over GIL_GAP s, with every thread's stack right after
 GIL_GAP = 0.15
 ours_runs = []  # (start, end) of sampled runs of the add-on's Python on the main thread
 stalls = []  # main-loop stalls over STALL s, with what the main thread ran
 STALL = 0.25
+
+
+def cpu_share(start, end):
+    """Blender's own CPU use over [start, end], in cores (2.0: both cores busy)."""
+    inside = [m for m in cpu_marks if start <= m[0] <= end]
+    if len(inside) < 2:
+        return None
+    return (inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0])
 
 
 def finish():
@@ -468,6 +479,9 @@ def finish():
         )
     result["stalls"] = stalls
     result["gil_gaps"] = gil_gaps
+    result["idle"]["blender_cpu"] = (
+        cpu_share(result["idle"]["start"], result["idle"]["end"]) if "idle" in result else None
+    )
     result["ours_longest"] = max(((b - a, w) for a, b, w in ours_runs), default=(0.0, []))
     for job in jobs().HISTORY:
         gap, n = largest_gap(job["start"], job["end"])
@@ -478,6 +492,7 @@ def finish():
                 "ticks": n,
                 "largest_gap": gap,
                 "largest_gil_gap": largest_gap(job["start"], job["end"], probe_ticks)[0],
+                "blender_cpu": cpu_share(job["start"], job["end"]),
                 "largest_ours": max(
                     [
                         min(b, job["end"]) - max(a, job["start"])
