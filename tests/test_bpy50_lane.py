@@ -17,6 +17,7 @@ PY50 = os.path.join(ROOT, ".venv-bpy50", "bin", "python")
 LANE_TESTS = [
     "tests/test_extension.py",
     "tests/test_operators.py",
+    "tests/test_load_set.py",
     "tests/test_jobs.py",
     "tests/test_preview_blender.py",
 ]

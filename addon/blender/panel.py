@@ -67,6 +67,17 @@ def _draw_region(layout, mat, width):
             width,
             icon="ERROR",
         )
+    # An analysed set's materials on the plot (grey dots): Load Set reads analyze's fits.json.
+    row = col.row(align=True)
+    if state.set_data:
+        count = len(state.set_points())
+        name = os.path.basename(bpy.path.abspath(state.set_path)) or "set"
+        row.label(text=f"Set: {name} ({count} material{'s' if count != 1 else ''})", icon="OUTLINER_DATA_POINTCLOUD")
+    else:
+        row.label(text="Set: none (fits.json of 'analyze')", icon="OUTLINER_DATA_POINTCLOUD")
+    row.operator("brdf_moments.load_set", text="Load Set…", icon="FILEBROWSER").material = mat.name
+    if state.set_data or state.set_path:
+        row.operator("brdf_moments.clear_set", text="", icon="X").material = mat.name
     img = bpy.data.images.get(region_image_name(mat))
     if img is not None:
         row = col.row(align=True)

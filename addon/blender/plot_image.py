@@ -211,11 +211,35 @@ CLAMP_COLOUR = (1.0, 0.35, 0.3)
 CORRELATION_COLOUR = (0.7, 0.7, 0.7)
 
 
-def region_plot(region, slider=None, used=None, correlation_a=None, width=600, height=420):
+SET_COLOUR = (0.62, 0.62, 0.62)
+
+
+def _set_ranges(points, x_lo, x_hi, y_lo, y_hi):
+    """The axis ranges widened for an analysed set's points, and the points that then fit.
+
+    The plot is about this material's region: a set's outlier (a near-mirror at 10^-5, a slope
+    of -3) would otherwise squash the region into a corner. So a set may widen the mean-slope
+    axis by at most half its span on each side and the log-variance axis by at most one decade
+    each way; points beyond are left off and counted in the legend ("set (N; k off)")."""
+    pts = np.asarray(points, float).reshape(-1, 2)
+    pts = pts[np.isfinite(pts).all(axis=1) & (pts[:, 1] > 0)]
+    if not len(pts):
+        return x_lo, x_hi, y_lo, y_hi, pts
+    span = x_hi - x_lo
+    mu, ly = pts[:, 0], np.log10(pts[:, 1])
+    ok = (mu >= x_lo - 0.5 * span) & (mu <= x_hi + 0.5 * span) & (ly >= y_lo - 1.0) & (ly <= y_hi + 1.0)
+    if ok.any():
+        x_lo, x_hi = min(x_lo, float(mu[ok].min()) - 0.05), max(x_hi, float(mu[ok].max()) + 0.05)
+        y_lo, y_hi = min(y_lo, float(ly[ok].min()) - 0.05), max(y_hi, float(ly[ok].max()) + 0.05)
+    return x_lo, x_hi, y_lo, y_hi, pts[ok]
+
+
+def region_plot(region, slider=None, used=None, correlation_a=None, width=600, height=420, set_points=None):
     """The reachable region on the (mean slope, variance) plane, as RGBA float32 (row 0 on top).
 
     The region (filled, outlined), the correlation quadratic with coefficient ``correlation_a``
-    (dashed), the fitted point (orange), the sliders (white ring) and, when the sliders lie
+    (dashed), an analysed set's materials ``set_points`` ((mean slope, variance) pairs: small
+    grey dots), the fitted point (orange), the sliders (white ring) and, when the sliders lie
     outside, the nearest reachable point Apply will use (red, joined to the sliders). The
     variance axis is logarithmic: regions span two decades."""
     from ..core.fits import LAMBERT_VARIANCE, correlation_curve
@@ -236,6 +260,8 @@ def region_plot(region, slider=None, used=None, correlation_a=None, width=600, h
         if np.isfinite(v) and v > 0
     ]
     y_lo, y_hi = math.log10(min(s2_all)) - 0.05, math.log10(max(s2_all)) + 0.05
+    n_set = 0 if set_points is None else len(set_points)
+    x_lo, x_hi, y_lo, y_hi, shown = _set_ranges(set_points if n_set else [], x_lo, x_hi, y_lo, y_hi)
     left, right, top, bottom = 7 * ADVANCE * s + 10, 12, 3 * line_h + 8, height - 2 * line_h - 14
     x0, x1 = left, width - right - 1
 
@@ -281,6 +307,8 @@ def region_plot(region, slider=None, used=None, correlation_a=None, width=600, h
         mus = np.linspace(x_lo, x_hi, 200)
         curve = correlation_curve(mus, correlation_a)
         c.polyline(*px(mus, np.where(curve > 0, curve, np.nan)), CORRELATION_COLOUR, width=1.0 * s, dashed=True)
+    if len(shown):  # under the markers: the fit and the sliders stay legible in a dense set
+        c.dot(*px(shown[:, 0], shown[:, 1]), SET_COLOUR, radius=2.0 * s, alpha=0.9)
     if slider and used and (abs(slider[0] - used[0]) > 1e-9 or abs(slider[1] - used[1]) > 1e-12):
         c.polyline(*px([slider[0], used[0]], [slider[1], used[1]]), CLAMP_COLOUR, width=1.0 * s)
         c.dot(*px(used[0], used[1]), CLAMP_COLOUR, radius=4.0 * s)
@@ -295,6 +323,9 @@ def region_plot(region, slider=None, used=None, correlation_a=None, width=600, h
     items = [("fit", FIT_COLOUR), ("sliders", SLIDER_COLOUR), ("Apply uses", CLAMP_COLOUR)]
     if correlation_a is not None and np.isfinite(correlation_a):
         items.append((f"correlation a={correlation_a:.3g}", CORRELATION_COLOUR))
+    if n_set:
+        off = n_set - len(shown)
+        items.append((f"set ({n_set}; {off} off)" if off else f"set ({n_set})", SET_COLOUR))
     for label, colour in items:
         c.dot(np.array([lx + 4.0 * s]), np.array([ly + line_h / 2.0]), colour, radius=3.0 * s)
         draw_text(c.px, lx + 12 * s, ly, label, TEXT, s)

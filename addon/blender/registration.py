@@ -8,8 +8,10 @@ from ...operators import (
     analyse,
     apply_edit,
     build_preview,
+    clear_set,
     export,
     load_merl,
+    load_set,
     reset_sliders,
     restore_material,
     show_image,
@@ -24,6 +26,8 @@ OPERATORS = (
     export.BRDFMOMENTS_OT_export,
     build_preview.BRDFMOMENTS_OT_build_preview,
     show_image.BRDFMOMENTS_OT_show_image,
+    load_set.BRDFMOMENTS_OT_load_set,
+    clear_set.BRDFMOMENTS_OT_clear_set,
 )
 CLASSES = (*state.CLASSES, *OPERATORS, *panel.CLASSES)
 

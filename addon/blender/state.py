@@ -139,7 +139,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         name="Correlation a",
         default=0.0,
         update=lambda self, ctx: _slider_moved(self) if self.lock else region_image(self.id_data, later=True),
-        description="the quadratic's a in σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12 (fit a set with 'python -m addon fit')",
+        description="the quadratic's a in σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12 (fit a set with 'python -m addon analyze', then Load Set)",
     )
     mode: bpy.props.EnumProperty(
         name="Mode",
@@ -149,6 +149,10 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     )
     # The reachable region per mode (JSON of core.edit.reach.ReachableRegion), from the analysis.
     region_data: bpy.props.StringProperty(options={"HIDDEN"})
+    # An analysed set shown on the region plot (Load Set): [[name, mu_slope, sigma2], ...] as
+    # compact JSON, and the fits.json it came from (for the panel; never written to).
+    set_data: bpy.props.StringProperty(options={"HIDDEN"})
+    set_path: bpy.props.StringProperty(name="Set", subtype="FILE_PATH", options={"HIDDEN"})
     # The last re-synthesis (Apply).
     edited_path: bpy.props.StringProperty(name="Edited table", subtype="FILE_PATH")
     edited_profiles_data: bpy.props.StringProperty(options={"HIDDEN"})
@@ -318,6 +322,20 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
             return ReachableRegion.from_json(data[self.mode]) if self.mode in data else None
         except (ValueError, TypeError, KeyError):
             return None
+
+    def set_points(self):
+        """The loaded set's [(name, mu_slope, sigma2)], or [] (none loaded, or damaged in the
+        .blend: a damaged set is not drawn, never a traceback in the panel)."""
+        import json
+
+        if not self.set_data:
+            return []
+        try:
+            rows = json.loads(self.set_data)
+            out = [(str(n), float(m), float(s)) for n, m, s in rows]
+        except (ValueError, TypeError):
+            return []
+        return [p for p in out if math.isfinite(p[1]) and math.isfinite(p[2])]
 
     def requested_point(self):
         """((mu, sigma2) the sliders ask for, (mu, sigma2) Apply will use) or None: the region's
@@ -517,10 +535,17 @@ def region_image(mat, later=False):
     point = state.requested_point()
     slider, used = point if point else ((state.mu_slope, state.sigma2), None)
     corr = state.correlation_a
+    points = [(m, s) for _, m, s in state.set_points()] or None
 
     def draw():
         return region_plot(
-            region, slider, used, correlation_a=corr, width=REGION_PLOT_SIZE[0], height=REGION_PLOT_SIZE[1]
+            region,
+            slider,
+            used,
+            correlation_a=corr,
+            width=REGION_PLOT_SIZE[0],
+            height=REGION_PLOT_SIZE[1],
+            set_points=points,
         )
 
     return draw_later(region_image_name(mat), draw, now=not later)

@@ -310,3 +310,60 @@ def fit_set(profiles_by_name: dict, fit_range=DEFAULT_RANGE, materials: dict | N
         corr["materials"] = inside
         out["correlation"] = corr
     return out
+
+
+def _set_number(value, where):
+    """A fitted scalar of a set's fits.json: a finite number, or None (nothing fitted)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{where} is {type(value).__name__}, not a number")
+    if not math.isfinite(value):  # 1e999 parses to inf (NaN/Infinity literals never get this far)
+        raise ValueError(f"{where} is {value}, not a finite number")
+    return float(value)
+
+
+def set_points(doc, max_materials=None):
+    """The (name, mu_slope, sigma2) of each material of an analysed set (``analyze``'s fits.json,
+    as parsed JSON) that has both fits, in the file's order; and the set's correlation ``a``,
+    or None when the file has none (one material, or none inside the model). ValueError (one
+    line) for a document that is not such a file, or holds more than ``max_materials``."""
+    from .limits import MAX_SET_MATERIALS
+
+    limit = MAX_SET_MATERIALS if max_materials is None else max_materials
+    if not isinstance(doc, dict) or not isinstance(doc.get("materials"), dict):
+        raise ValueError("not a set's fits.json (no 'materials' object; write one with 'python -m addon analyze')")
+    materials = doc["materials"]
+    if len(materials) > limit:
+        raise ValueError(f"{len(materials)} materials, the limit is {limit}")
+    points = []
+    for name, fit in materials.items():
+        if not isinstance(fit, dict) or "mu_slope" not in fit or "sigma2" not in fit:
+            raise ValueError(f"material {name[:80]!r} has no 'mu_slope' and 'sigma2' fits")
+        mu = _set_number(fit["mu_slope"], f"material {name[:80]!r}: mu_slope")
+        s2 = _set_number(fit["sigma2"], f"material {name[:80]!r}: sigma2")
+        if mu is not None and s2 is not None:
+            points.append((name, mu, s2))
+    if not points:
+        raise ValueError("no material of the set has both a mean slope and a variance fit")
+    corr = doc.get("correlation")
+    a = None
+    if corr is not None:
+        if not isinstance(corr, dict) or "a" not in corr:
+            raise ValueError("the 'correlation' entry has no coefficient 'a'")
+        a = _set_number(corr["a"], "correlation a")
+    return points, a
+
+
+def load_set_points(path):
+    """``set_points`` of the fits.json at ``path``, read through ``safeio.load_json`` (a regular
+    file of at most ``limits.MAX_SET_JSON_BYTES``, no NaN/Infinity); UnsafePath or ValueError,
+    one line naming the file, for anything else."""
+    from .limits import MAX_SET_JSON_BYTES
+    from .safeio import UnsafePath, load_json
+
+    doc = load_json(path, MAX_SET_JSON_BYTES, "fits JSON")
+    try:
+        return set_points(doc)
+    except ValueError as exc:
+        raise UnsafePath(path, str(exc)) from None

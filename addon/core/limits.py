@@ -29,6 +29,8 @@ MAX_JSON_LIST = MAX_ELEVATIONS  # values per profile list
 MAX_NBRDF_BYTES = 64 << 20  # a Neural-BRDF .npz
 MAX_NBRDF_MEMBERS = 6 * 2000  # arrays in one .npz: six per network, up to 2000 networks
 MAX_CACHE_ENTRY_BYTES = 1 << 30  # one cache file (the largest operator part is ~200 MB)
+MAX_SET_MATERIALS = 5000  # materials of an analysed set (fits.json) shown on the region plot
+MAX_SET_JSON_BYTES = 10 << 20  # that fits.json: analyze writes ~1.3 KB a material, 6.5 MB at 5000
 
 # --- caches on disk (least recently used goes first) ------------------------------------------
 OPERATOR_CACHE_MAX_ENTRIES = 8  # slice operators (~370 MB each at 90 views, 4 MB for one view)
