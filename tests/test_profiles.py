@@ -186,6 +186,31 @@ def test_fast_integrator_agrees_with_independent_reference(sample_table, name, t
         assert p["sigma_pp"][0] == pytest.approx(ref["sigma_pp"][0, i], rel=1e-3)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("name, theta_o_deg", [("nielsen/greencloth", 89.0), ("rgl/irid_flake_paint1", 89.0)])
+def test_fast_integrator_agrees_with_reference_on_measured_tables(sample_table, name, theta_o_deg):
+    # SPEC 6 on the measured set (Neural-BRDF decodes, specular part over the paper's floor), at
+    # the grazing view where the rules differ: a fabric (greencloth: a broad lobe, every cell
+    # lit, the cells' values all differ) and the sharpest grazing lobe of the set (a metallic
+    # flake paint, sigma_pp ~7e-4 rad^2 at 89 deg). The reference is reference_sums at its
+    # default budget; at 89 deg a 4x budget moves it by 1e-5 (greencloth) and 2.6e-4
+    # (irid_flake, sigma^2) (BENCHMARKS: "Tabulated samples against the converged reference").
+    # The point-sampled rule of version 7 (RuleParams(exact=False)) fails this test: greencloth
+    # alpha 1.3e-3 and mu 1.4e-3 rad off, irid_flake sigma_tt 1.2e-3 and sigma_pp 1.1e-3 off;
+    # this rule: 2.3e-5 / 2.2e-5 rad and 4.2e-4 (measured 2026-12-02).
+    table = sample_table(name)
+    to = math.radians(theta_o_deg)
+    values = specular_values(table, diffuse_floor(table), True)
+    ref = profiles_from_sums(reference_sums(values, to)[None], np.array([[-to]]))
+    prof = compute_profiles(table, np.array([to]))
+    for i, ch in enumerate(("r", "g", "b", "avg")):
+        p = prof[ch]
+        assert p["alpha"][0] == pytest.approx(ref["alpha"][0, i], rel=1e-3)
+        assert p["mu_theta"][0] == pytest.approx(ref["mu_theta"][0, i], abs=1e-3)
+        assert p["sigma_tt"][0] == pytest.approx(ref["sigma_tt"][0, i], rel=1e-3)
+        assert p["sigma_pp"][0] == pytest.approx(ref["sigma_pp"][0, i], rel=1e-3)
+
+
 def test_monte_carlo_is_seedable_and_unbiased_on_a_broad_lobe():
     table = _lambertian_table()
     values = specular_values(table, np.zeros(3), split=False)
