@@ -80,15 +80,28 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         # Edits still shown by a material are never evicted from the bounded cache.
         in_use = [m.brdf_moments.edited_path for m in bpy.data.materials if m.brdf_moments.edited_path]
 
+        # The material's own analysis, fit and reachable region (stored at full precision by
+        # Analyse): the edit starts from what the panel shows, the live preview edits from the
+        # same, and the child does not analyse the file again.
+        from .common import source_stamp
+
+        if state.source_stamp and source_stamp(state.source_path) != state.source_stamp:
+            raise ValueError(f"{source}: the file changed since it was analysed; analyse it again before Apply")
+        stored_prof, stored_fit, region = state.profiles(), state.fit(), state.region()
+
         def work(report_progress):
             from ..addon.core import cachefs
             from ..addon.core.limits import EDITS_CACHE_MAX_BYTES, EDITS_CACHE_MAX_ENTRIES
 
             table = read_table(spec)
-            prof = compute_profiles(table, floor=floor)
-            fit = fit_material(prof)
+            prof, fit = stored_prof, stored_fit
+            if prof is None:  # not stored (cannot happen once analysed; kept for safety)
+                prof = compute_profiles(table, floor=floor)
+                fit = fit_material(prof)
             report_progress(1, 10)
-            res = edit(table, targets, prof, fit, progress=lambda d, t: report_progress(1 + 8 * d // t, 10))
+            res = edit(
+                table, targets, prof, fit, region=region, progress=lambda d, t: report_progress(1 + 8 * d // t, 10)
+            )
             if scale:
                 res = scale_to_albedo(res)
             cachefs.cache_folder(os.path.dirname(out))

@@ -60,6 +60,20 @@ def analysis_work(path, floor="min"):
     return work
 
 
+def source_stamp(path) -> str:
+    """The analysed file's (size, mtime_ns) as JSON ('' when it cannot be read)."""
+    import json
+    import os
+
+    from ..addon.core.nbrdf import source_file
+
+    try:
+        st = os.stat(source_file(bpy.path.abspath(path)))
+    except (OSError, ValueError):
+        return ""
+    return json.dumps([st.st_size, st.st_mtime_ns])
+
+
 def store_analysis(mat, path, result) -> str:
     """Write an analysis into the material (and its plot); returns the line to report."""
     import json
@@ -72,6 +86,7 @@ def store_analysis(mat, path, result) -> str:
     again = state.analysed and bpy.path.abspath(state.source_path) == bpy.path.abspath(path)
     state.source_path = path
     state.store_analysis(prof, fit, keep_sliders=again)
+    state.source_stamp = source_stamp(path)
     state.region_data = json.dumps(regions)
     if not again:
         state.edited_path = ""

@@ -72,6 +72,40 @@ def test_apply_at_the_fit_is_the_identity_and_leaves_the_source_alone(analysed):
     assert state.achieved_mu_slope == pytest.approx(state.fit_mu_slope, abs=1e-6)
 
 
+def test_apply_edits_from_the_stored_analysis_exactly_as_the_engine_does(analysed):
+    """Apply starts from the analysis Analyse stored (it does not analyse the file again): the
+    written table is the engine's edit of the file with a fresh analysis, to rounding. Stored
+    as float32 (before 12-02) it would differ by ~1e-7."""
+    from addon.core.edit import edit, scale_to_albedo
+
+    bpy, mat, src = analysed
+    state = mat.brdf_moments
+    state.sigma2 = state.fit_sigma2 * 1.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Rough") == {"FINISHED"}
+    table = read_merl(src)
+    prof = compute_profiles(table)
+    res = edit(table, state.slider_targets(), prof, fit_material(prof), remeasure=False)
+    if state.scale_to_one:
+        res = scale_to_albedo(res)
+    got = read_merl(state.edited_path)
+    np.testing.assert_array_equal(got.valid, res.table.valid)
+    np.testing.assert_allclose(got.rho, res.table.rho, rtol=1e-12, atol=1e-300)
+
+
+def test_apply_refuses_a_file_that_changed_since_it_was_analysed(analysed):
+    bpy, mat, src = analysed
+    state = mat.brdf_moments
+    state.sigma2 = state.fit_sigma2 * 1.5
+    before = (state.edited_path, state.profiles_data)
+    st = os.stat(src)
+    os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns + 5_000_000_000))
+    with pytest.raises(RuntimeError, match="changed since it was analysed"):
+        bpy.ops.brdf_moments.apply_edit(material="Rough")
+    assert (state.edited_path, state.profiles_data) == before
+    assert bpy.ops.brdf_moments.analyse(material="Rough") == {"FINISHED"}  # analysed again: Apply works
+    assert bpy.ops.brdf_moments.apply_edit(material="Rough") == {"FINISHED"}
+
+
 def test_apply_energy_strength_and_export_everything(analysed, tmp_path):
     bpy, mat, src = analysed
     state = mat.brdf_moments

@@ -680,7 +680,7 @@ def test_damaged_stored_profiles_are_refused_in_one_line(blender, stress_log):
     }
     text = pack_profiles(Profiles(np.linspace(0, 1, n), np.zeros(3), ch))
     assert unpack_profiles(text).theta_o.shape == (n,)
-    raw = np.frombuffer(base64.b64decode(text), "<f4").copy()
+    raw = np.frombuffer(base64.b64decode(text), "<f8").copy()  # stored as float64 since 2026-12-02
     inf = raw.copy()
     inf[10] = np.inf
     cut = raw[:-3]
@@ -692,6 +692,10 @@ def test_damaged_stored_profiles_are_refused_in_one_line(blender, stress_log):
         stress_log.record("nothing lost: 7 one line, no traceback", "error", f"stored profiles: {case}")
     with pytest.raises(ValueError, match="damaged"):
         unpack_profiles("not base64 at all!")
+    # A .blend from before stores float32: still read, to float32 precision.
+    old = base64.b64encode(raw.astype("<f4").tobytes()).decode()
+    np.testing.assert_allclose(unpack_profiles(old).theta_o, np.linspace(0, 1, n), rtol=1e-7)
+    np.testing.assert_array_equal(unpack_profiles(text).theta_o, np.linspace(0, 1, n))  # float64: exact
 
 
 # --- 8. name collisions -------------------------------------------------------------------------

@@ -29,9 +29,25 @@ def clamp_sigma2(v):
 
 
 def pack_profiles(prof) -> str:
-    arr = np.stack([np.stack([prof[ch][k] for k in PROFILE_KEYS]) for ch in CHANNELS]).astype("<f4")
-    head = np.concatenate([[len(prof.theta_o)], prof.theta_o, prof.kd]).astype("<f4")
+    """Profiles as base64 of float64 (about 60 kB for 90 views): the stored analysis is the one
+    the engine made, bit for bit, so an Apply or a live preview from it edits exactly what the
+    command line edits. (Before 2026-12-02 they were stored as float32: still read.)"""
+    arr = np.stack([np.stack([prof[ch][k] for k in PROFILE_KEYS]) for ch in CHANNELS]).astype("<f8")
+    head = np.concatenate([[len(prof.theta_o)], prof.theta_o, prof.kd]).astype("<f8")
     return base64.b64encode(head.tobytes() + arr.tobytes()).decode("ascii")
+
+
+def _stored_floats(data: bytes):
+    """The stored numbers: float64, or float32 from older files (whichever length fits)."""
+    for dtype in ("<f8", "<f4"):
+        size = np.dtype(dtype).itemsize
+        if len(data) % size:
+            continue
+        raw = np.frombuffer(data, dtype=dtype).astype(float)
+        n = int(raw[0]) if len(raw) and np.isfinite(raw[0]) and 1 <= raw[0] <= MAX_ELEVATIONS else -1
+        if n >= 1 and len(raw) == 4 + n + len(CHANNELS) * len(PROFILE_KEYS) * n:
+            return n, raw
+    raise ValueError("the stored analysis is damaged (wrong length); analyse the material again")
 
 
 def unpack_profiles(text: str):
@@ -39,12 +55,10 @@ def unpack_profiles(text: str):
 
     # Stored in the .blend, so it may be damaged or edited: checked before anything uses it.
     try:
-        raw = np.frombuffer(base64.b64decode(text.encode("ascii"), validate=True), dtype="<f4").astype(float)
+        data = base64.b64decode(text.encode("ascii"), validate=True)
     except (ValueError, UnicodeEncodeError):
         raise ValueError("the stored analysis is damaged (not base64 float data); analyse the material again") from None
-    n = int(raw[0]) if len(raw) and np.isfinite(raw[0]) and 1 <= raw[0] <= MAX_ELEVATIONS else -1
-    if n < 1 or len(raw) != 4 + n + len(CHANNELS) * len(PROFILE_KEYS) * n:
-        raise ValueError("the stored analysis is damaged (wrong length); analyse the material again")
+    n, raw = _stored_floats(data)
     theta, kd = raw[1 : 1 + n], raw[1 + n : 4 + n]
     arr = raw[4 + n :].reshape(len(CHANNELS), len(PROFILE_KEYS), n)
     if not (np.isfinite(theta).all() and np.isfinite(kd).all()) or np.isinf(arr).any():
@@ -94,6 +108,12 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     fit_mean_rmse: bpy.props.FloatProperty(name="mean RMSE")
     fit_variance_rmse: bpy.props.FloatProperty(name="variance RMSE")
     fit_notes: bpy.props.StringProperty(name="notes")
+    # The engine's whole fit (JSON, float64): what Apply and the live preview edit from. The
+    # float properties above are for display (and older files, which have no fit_data).
+    fit_data: bpy.props.StringProperty(options={"HIDDEN"})
+    # The analysed file's size and modification time (JSON): Apply edits from the stored analysis,
+    # so it refuses a file that changed since.
+    source_stamp: bpy.props.StringProperty(options={"HIDDEN"})
     # Sliders.
     strength: bpy.props.FloatProperty(
         name="Strength", default=1.0, min=0.0, soft_max=4.0, update=lambda self, ctx: _slider_moved(self)
@@ -232,6 +252,9 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         chans = fit.get("channels") or {}
         self.fit_channels = [float(chans.get(c, {}).get(k) or 0.0) for k in ("alpha_b", "alpha1", "m1") for c in "rgb"]
         self.fit_notes = "; ".join(fit.get("notes", []))
+        import json
+
+        self.fit_data = json.dumps(fit, default=lambda v: v.item() if hasattr(v, "item") else str(v))
         # Sliders start at the fitted values (their ranges hold every fitted value).
         if keep_sliders:
             return
@@ -260,7 +283,21 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         return unpack_profiles(self.edited_profiles_data) if self.edited_profiles_data else None
 
     def fit(self) -> dict:
-        """The stored fits as the engine's dict (enough for editing and plotting)."""
+        """The stored fit as the engine's dict: the one the analysis made (``fit_data``), else
+        (older files) rebuilt from the float properties, enough for editing and plotting."""
+        import json
+
+        if self.fit_data:
+            try:
+                d = json.loads(self.fit_data)
+            except ValueError:
+                d = None
+            keys = ("alpha_b", "theta0", "theta1", "alpha1", "m1", "mu_slope", "sigma2")
+            if isinstance(d, dict) and all(
+                d.get(k) is None or (isinstance(d.get(k), (int, float)) and math.isfinite(d[k])) for k in keys
+            ):
+                return d
+            raise ValueError(f"{self.id_data.name}: the stored fit is damaged; analyse the material again")
         values = [
             self.fit_alpha_b,
             self.fit_theta0,
