@@ -2,7 +2,7 @@
 
 import bpy
 
-from .common import target_material
+from .common import material_or_report
 
 
 class BRDFMOMENTS_OT_clear_set(bpy.types.Operator):
@@ -17,10 +17,8 @@ class BRDFMOMENTS_OT_clear_set(bpy.types.Operator):
     def execute(self, context):
         from ..addon.blender.state import region_image
 
-        try:
-            mat = target_material(context, self.material)
-        except ValueError as exc:
-            self.report({"ERROR"}, str(exc))
+        mat = material_or_report(self, context)
+        if mat is None:
             return {"CANCELLED"}
         state = mat.brdf_moments
         if not state.set_data and not state.set_path:

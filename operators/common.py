@@ -19,6 +19,16 @@ def target_material(context, name=""):
     return mat
 
 
+def material_or_report(op, context, analysed=False):
+    """The operator's material (``op.material``, else the one the UI shows), or None after
+    reporting why there is none in one line (the operators' shared first step)."""
+    try:
+        return (analysed_material if analysed else target_material)(context, op.material)
+    except ValueError as exc:
+        op.report({"ERROR"}, str(exc))
+        return None
+
+
 def analysed_material(context, name=""):
     mat = target_material(context, name)
     if not mat.brdf_moments.analysed:

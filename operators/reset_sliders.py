@@ -2,7 +2,7 @@
 
 import bpy
 
-from .common import analysed_material
+from .common import material_or_report
 
 
 class BRDFMOMENTS_OT_reset_sliders(bpy.types.Operator):
@@ -15,10 +15,8 @@ class BRDFMOMENTS_OT_reset_sliders(bpy.types.Operator):
     material: bpy.props.StringProperty(name="Material", description="target material (default: active)")
 
     def execute(self, context):
-        try:
-            mat = analysed_material(context, self.material)
-        except ValueError as exc:
-            self.report({"ERROR"}, str(exc))
+        mat = material_or_report(self, context, analysed=True)
+        if mat is None:
             return {"CANCELLED"}
         mat.brdf_moments.reset_sliders()
         return {"FINISHED"}

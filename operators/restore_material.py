@@ -2,7 +2,7 @@
 
 import bpy
 
-from .common import target_material
+from .common import material_or_report
 
 
 class BRDFMOMENTS_OT_restore_material(bpy.types.Operator):
@@ -17,10 +17,8 @@ class BRDFMOMENTS_OT_restore_material(bpy.types.Operator):
     def execute(self, context):
         from ..addon.blender.material import restore
 
-        try:
-            mat = target_material(context, self.material)
-        except ValueError as exc:
-            self.report({"ERROR"}, str(exc))
+        mat = material_or_report(self, context)
+        if mat is None:
             return {"CANCELLED"}
         if not restore(mat):
             self.report({"INFO"}, f"{mat.name}: the shader is already the original")
