@@ -52,7 +52,7 @@ def label_image(rgba, layout, labels):
 
 def write_preview_image(mat, rgba):
     """The preview as a float image (linear radiance; ``rgba`` rows top first), kept in the .blend."""
-    from .state import keep_image
+    from .images import keep_image
 
     return keep_image(preview_image_name(mat), rgba, float_buffer=True)
 

@@ -6,7 +6,6 @@ file reopens with its profiles even when the 35 MB MERL file is gone.
 
 import base64
 import math
-import threading
 
 import bpy
 import numpy as np
@@ -14,6 +13,7 @@ import numpy as np
 from ..core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
 from ..core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE
 from ..core.moments import CHANNELS, PROFILE_KEYS
+from .images import draw_later
 
 MU_MIN, MU_MAX = -2.0, 0.0
 # The slider reaches below the model's floor (MIN_SIGMA2): the edit clamps it and says so.
@@ -442,25 +442,6 @@ def _slider_moved(state):
 PLOT_SIZE = (900, 780)
 
 
-def keep_image(name, rgba, float_buffer=False):
-    """The image ``name`` holding ``rgba`` ((H, W, 4), row 0 on top), kept in the .blend (fake
-    user) with a fresh thumbnail for the panel; made anew when its size or kind changed."""
-    h, w = rgba.shape[:2]
-    img = bpy.data.images.get(name)
-    if img is not None and (tuple(img.size) != (w, h) or bool(img.is_float) != float_buffer):
-        bpy.data.images.remove(img)
-        img = None
-    if img is None:
-        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=float_buffer)
-    img.pixels.foreach_set(np.ascontiguousarray(rgba[::-1], np.float32).ravel())  # Blender's rows start at the bottom
-    img.update()
-    img.use_fake_user = True
-    if hasattr(img, "preview_ensure"):
-        img.preview_ensure()
-        img.preview.reload()
-    return img
-
-
 def plot_image(mat, prof=None, fit=None, edited=None, width=PLOT_SIZE[0], height=PLOT_SIZE[1], later=False):
     """The panel's profile plot for ``mat``: an image named after the material, kept in the
     .blend (fake user; redrawn from the stored profiles when a file is opened). ``later``: in
@@ -484,72 +465,6 @@ def plot_image(mat, prof=None, fit=None, edited=None, width=PLOT_SIZE[0], height
         return profile_plot(prof, fit, edited, width, height)
 
     return draw_later(f"BRDF Moments plot: {name}", draw, caption, now=not later)
-
-
-# --- images drawn off the main thread ------------------------------------------------------------
-# The plots are numpy (0.1-0.3 s each in a window on this machine's software-GL Blender): drawn on
-# the main thread after a job, they froze the UI for that long. In a window they are drawn in a
-# thread; a timer then puts the pixels into the image (a few ms). A newer request for the same
-# image supersedes one still drawing.
-
-_DRAW_GEN: dict = {}  # image name -> generation of the latest request
-_DRAWN: list = []  # (image name, generation, pixels, extra, then) from the threads
-_DRAW_PENDING: set = set()  # image names requested and not yet in place
-_DRAW_LOCK = threading.Lock()
-
-
-def drawing() -> bool:
-    """True while an image requested with ``draw_later`` is not in place yet."""
-    return bool(_DRAW_PENDING)
-
-
-def draw_later(name, draw, then=None, now=False):
-    """The image ``name`` from ``draw()`` -> rgba or (rgba, extra); ``then(extra)`` runs on the
-    main thread once it is in place. Drawn at once (and the image returned) headless or with
-    ``now``; else in a thread, returning None."""
-
-    def split(out):
-        return out if isinstance(out, tuple) else (out, None)
-
-    if now or bpy.app.background:
-        px, extra = split(draw())
-        img = keep_image(name, px)
-        if then is not None:
-            then(extra)
-        return img
-    gen = _DRAW_GEN.get(name, 0) + 1
-    _DRAW_GEN[name] = gen
-    _DRAW_PENDING.add(name)
-
-    def run():
-        try:
-            px, extra = split(draw())
-        except Exception as exc:  # noqa: BLE001 - a failed drawing leaves the last image
-            print(f"BRDF Moments: drawing {name}: {type(exc).__name__}: {exc}")
-            px = extra = None
-        with _DRAW_LOCK:
-            _DRAWN.append((name, gen, px, extra, then))
-
-    threading.Thread(target=run, name="brdf_moments: drawing", daemon=True).start()
-    if not bpy.app.timers.is_registered(_place_drawn):
-        bpy.app.timers.register(_place_drawn, first_interval=0.02)
-    return None
-
-
-def _place_drawn():
-    with _DRAW_LOCK:
-        done = list(_DRAWN)
-        _DRAWN.clear()
-    for name, gen, px, extra, then in done:
-        if _DRAW_GEN.get(name) != gen:
-            continue  # superseded: the newer drawing will come
-        _DRAW_PENDING.discard(name)
-        if px is None:
-            continue
-        keep_image(name, px)
-        if then is not None:
-            then(extra)
-    return 0.02 if _DRAW_PENDING else None
 
 
 REGION_PLOT_SIZE = (600, 420)

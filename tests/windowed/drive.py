@@ -179,8 +179,8 @@ def run_op(op, mode="EXEC_DEFAULT", **kwargs):
 
 def wait_jobs():
     """Until every job has ended and the images it asked for (drawn off the main thread) are in."""
-    state = sys.modules["brdf_moments.addon.blender.state"]
-    while jobs().running() or getattr(state, "drawing", lambda: False)():
+    images = sys.modules.get("brdf_moments.addon.blender.images")
+    while jobs().running() or (images is not None and images.drawing()):
         yield 0.05
 
 

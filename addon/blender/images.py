@@ -1,0 +1,94 @@
+"""The add-on's images (the profile and region plots, the preview): kept in the .blend, and
+drawn off the main thread in a window."""
+
+from __future__ import annotations
+
+import threading
+
+import bpy
+import numpy as np
+
+
+def keep_image(name, rgba, float_buffer=False):
+    """The image ``name`` holding ``rgba`` ((H, W, 4), row 0 on top), kept in the .blend (fake
+    user) with a fresh thumbnail for the panel; made anew when its size or kind changed."""
+    h, w = rgba.shape[:2]
+    img = bpy.data.images.get(name)
+    if img is not None and (tuple(img.size) != (w, h) or bool(img.is_float) != float_buffer):
+        bpy.data.images.remove(img)
+        img = None
+    if img is None:
+        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=float_buffer)
+    img.pixels.foreach_set(np.ascontiguousarray(rgba[::-1], np.float32).ravel())  # Blender's rows start at the bottom
+    img.update()
+    img.use_fake_user = True
+    if hasattr(img, "preview_ensure"):
+        img.preview_ensure()
+        img.preview.reload()
+    return img
+
+
+# --- images drawn off the main thread ------------------------------------------------------------
+# The plots are numpy (0.1-0.3 s each in a window on this machine's software-GL Blender): drawn on
+# the main thread after a job, they froze the UI for that long. In a window they are drawn in a
+# thread; a timer then puts the pixels into the image (a few ms). A newer request for the same
+# image supersedes one still drawing.
+
+_DRAW_GEN: dict = {}  # image name -> generation of the latest request
+_DRAWN: list = []  # (image name, generation, pixels, extra, then) from the threads
+_DRAW_PENDING: set = set()  # image names requested and not yet in place
+_DRAW_LOCK = threading.Lock()
+
+
+def drawing() -> bool:
+    """True while an image requested with ``draw_later`` is not in place yet."""
+    return bool(_DRAW_PENDING)
+
+
+def draw_later(name, draw, then=None, now=False):
+    """The image ``name`` from ``draw()`` -> rgba or (rgba, extra); ``then(extra)`` runs on the
+    main thread once it is in place. Drawn at once (and the image returned) headless or with
+    ``now``; else in a thread, returning None."""
+
+    def split(out):
+        return out if isinstance(out, tuple) else (out, None)
+
+    if now or bpy.app.background:
+        px, extra = split(draw())
+        img = keep_image(name, px)
+        if then is not None:
+            then(extra)
+        return img
+    gen = _DRAW_GEN.get(name, 0) + 1
+    _DRAW_GEN[name] = gen
+    _DRAW_PENDING.add(name)
+
+    def run():
+        try:
+            px, extra = split(draw())
+        except Exception as exc:  # noqa: BLE001 - a failed drawing leaves the last image
+            print(f"BRDF Moments: drawing {name}: {type(exc).__name__}: {exc}")
+            px = extra = None
+        with _DRAW_LOCK:
+            _DRAWN.append((name, gen, px, extra, then))
+
+    threading.Thread(target=run, name="brdf_moments: drawing", daemon=True).start()
+    if not bpy.app.timers.is_registered(_place_drawn):
+        bpy.app.timers.register(_place_drawn, first_interval=0.02)
+    return None
+
+
+def _place_drawn():
+    with _DRAW_LOCK:
+        done = list(_DRAWN)
+        _DRAWN.clear()
+    for name, gen, px, extra, then in done:
+        if _DRAW_GEN.get(name) != gen:
+            continue  # superseded: the newer drawing will come
+        _DRAW_PENDING.discard(name)
+        if px is None:
+            continue
+        keep_image(name, px)
+        if then is not None:
+            then(extra)
+    return 0.02 if _DRAW_PENDING else None
