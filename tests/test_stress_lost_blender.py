@@ -88,7 +88,7 @@ def test_build_preview_never_renders_over_its_map(analysed_gold, tmp_path, stres
 def test_inf_in_the_stored_analysis_is_refused_by_export_and_build_preview(analysed_gold, tmp_path, stress_log):
     bpy, mat, src = analysed_gold
     state = mat.brdf_moments
-    raw = np.frombuffer(base64.b64decode(state.profiles_data), "<f4").copy()
+    raw = np.frombuffer(base64.b64decode(state.profiles_data), "<f8").copy()  # float64 since 2026-12-02
     raw[200] = np.inf
     state.profiles_data = base64.b64encode(raw.tobytes()).decode()
     out = tmp_path / "exports"

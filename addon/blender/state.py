@@ -287,17 +287,6 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         (older files) rebuilt from the float properties, enough for editing and plotting."""
         import json
 
-        if self.fit_data:
-            try:
-                d = json.loads(self.fit_data)
-            except ValueError:
-                d = None
-            keys = ("alpha_b", "theta0", "theta1", "alpha1", "m1", "mu_slope", "sigma2")
-            if isinstance(d, dict) and all(
-                d.get(k) is None or (isinstance(d.get(k), (int, float)) and math.isfinite(d[k])) for k in keys
-            ):
-                return d
-            raise ValueError(f"{self.id_data.name}: the stored fit is damaged; analyse the material again")
         values = [
             self.fit_alpha_b,
             self.fit_theta0,
@@ -311,6 +300,17 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         ]
         if not all(math.isfinite(v) for v in values):
             raise ValueError(f"{self.id_data.name}: the stored fits hold inf or NaN; analyse the material again")
+        if self.fit_data:
+            try:
+                d = json.loads(self.fit_data)
+            except ValueError:
+                d = None
+            keys = ("alpha_b", "theta0", "theta1", "alpha1", "m1", "mu_slope", "sigma2")
+            if isinstance(d, dict) and all(
+                d.get(k) is None or (isinstance(d.get(k), (int, float)) and math.isfinite(d[k])) for k in keys
+            ):
+                return d
+            raise ValueError(f"{self.id_data.name}: the stored fit is damaged; analyse the material again")
         return {
             "alpha_b": self.fit_alpha_b,
             "theta0": self.fit_theta0,
