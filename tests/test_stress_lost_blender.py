@@ -88,6 +88,7 @@ def test_build_preview_never_renders_over_its_map(analysed_gold, tmp_path, stres
 def test_inf_in_the_stored_analysis_is_refused_by_export_and_build_preview(analysed_gold, tmp_path, stress_log):
     bpy, mat, src = analysed_gold
     state = mat.brdf_moments
+    good = state.profiles_data
     raw = np.frombuffer(base64.b64decode(state.profiles_data), "<f8").copy()  # float64 since 2026-12-02
     raw[200] = np.inf
     state.profiles_data = base64.b64encode(raw.tobytes()).decode()
@@ -103,6 +104,11 @@ def test_inf_in_the_stored_analysis_is_refused_by_export_and_build_preview(analy
     with pytest.raises(RuntimeError, match="inf or NaN"):
         bpy.ops.brdf_moments.build_preview(material="Gold", path="BAKED", size=16, samples=1)
     stress_log.record(CAT, "error", "Build Preview with an inf fit")
+    state.profiles_data, state.fit_sigma2 = good, 0.1
+    state.fit_data = '{"mu_slope": -0.9, "sigma2": Infinity'  # the full-precision fit, damaged
+    with pytest.raises(RuntimeError, match="stored fit is damaged"):
+        bpy.ops.brdf_moments.build_preview(material="Gold", path="BAKED", size=16, samples=1)
+    stress_log.record(CAT, "error", "Build Preview with a damaged stored fit")
     assert list(out.iterdir()) == []
 
 
