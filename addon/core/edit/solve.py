@@ -156,8 +156,8 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, val
     )
     del avg
     rgb = R.Transform(R.spec_cube(values[:, :3]), ring_var)
-    controls.log_g = R.channel_gains(rgb, rings, controls, vt.alpha, weight[:, 0])
-    return R.tabulate(table, rgb, controls, kd), controls, report
+    controls.log_g, unit = R.channel_gains(rgb, rings, controls, vt.alpha, weight[:, 0])
+    return R.tabulate(table, rgb, controls, kd, unit), controls, report
 
 
 def _view_reach(prof, vt):
