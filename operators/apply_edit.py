@@ -144,6 +144,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         state.achieved_sigma2 = finite(res.achieved_sigma2)
         state.max_albedo = [finite(v) for v in res.max_albedo]
         state.edit_warnings = "\n".join(res.warnings)
+        state.edit_fidelity = res.fidelity.to_json() if res.fidelity is not None else ""
         plot_image(mat, prof, fit, res.profiles, later=True)
         note = ""
         if principled is not None:

@@ -102,6 +102,7 @@ def store_analysis(mat, path, result) -> str:
         state.edited_path = ""
         state.edited_profiles_data = ""
         state.edit_warnings = ""
+        state.edit_fidelity = ""
         state.principled_data = ""
     plot_image(mat, prof, fit, edited=None if again else False, later=True)
     region_image(mat, later=True)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from addon.core.edit import EditTargets, directional_albedo, edit, scale_to_albedo
-from addon.core.edit.legacy import solve_truncated, _trunc_moments
+from addon.core import truncated
+from addon.core.render.lobe import truncnorm_pdf
 from addon.core.fits import fit_material
 from addon.core.merl import lookup
 from addon.core.geometry import view_centred
@@ -94,9 +95,9 @@ def test_scale_to_albedo_brings_the_peak_to_one(glossy):
 def test_truncated_gaussian_solver_matches_its_targets():
     mean_t = np.array([0.0, -0.5, -1.2])
     var_t = np.array([0.3, 0.05, 0.02])
-    m, s, ok = solve_truncated(mean_t, var_t)
-    assert ok.all()
-    mt, vt = _trunc_moments(m, s)
+    m, s, used = truncated.solve(mean_t, var_t)
+    np.testing.assert_array_equal(used, var_t)  # none capped
+    mt, vt = truncated.moments(m, s)
     np.testing.assert_allclose(mt, mean_t, atol=1e-7)
     np.testing.assert_allclose(vt, var_t, rtol=1e-5)
     from scipy.stats import truncnorm
@@ -110,15 +111,14 @@ def test_truncated_moments_and_density_agree_with_scipy_far_into_the_tails(m, s)
     # Lobes centred beyond the horizon (m = -6, s = 0.05: all the mass in a far-tail sliver)
     # are where a naive erf difference divides zero by zero.
     from scipy.stats import truncnorm
-    from addon.core.edit.legacy import _truncated_gauss
 
     a, b = (-math.pi / 2 - m) / s, (math.pi / 2 - m) / s
     ref = truncnorm(a, b, loc=m, scale=s)
-    mt, vt = _trunc_moments(np.array([m]), np.array([s]))
+    mt, vt = truncated.moments(np.array([m]), np.array([s]))
     assert mt[0] == pytest.approx(ref.mean(), abs=1e-9)
     assert vt[0] == pytest.approx(ref.var(), rel=1e-6)
     x = np.linspace(-1.5, 1.5, 7)
-    g = _truncated_gauss(x, np.full(7, m), np.full(7, s))
+    g = truncnorm_pdf(x, np.full(7, m), np.full(7, s))
     assert np.isfinite(g).all()
     with np.errstate(divide="ignore", invalid="ignore"):
         logref = ref.logpdf(x)

@@ -63,9 +63,15 @@ def test_out_of_reach_keeps_the_mean_and_caps_the_variance():
 
 
 def test_edit_model_mode_and_the_preview_share_the_solver():
-    from addon.core.edit import legacy
+    """Model mode's per-view targets are the moments of the lobe the preview draws for them."""
+    from addon.core.edit.targets import model_view_moments
 
-    m, s, ok = legacy.solve_truncated(np.array([-1.0, -0.3]), np.array([0.3, 0.05]))
-    mp, sp = truncated_params(np.array([-1.0, -0.3]), np.array([0.3, 0.05]))
-    np.testing.assert_allclose(m, mp, rtol=1e-12)
-    np.testing.assert_allclose(s, sp, rtol=1e-12)
+    loc, s2 = np.array([-1.0, -0.3, -1.5]), 0.3
+    mean, var, beyond = model_view_moments(loc, s2)
+    m, s = truncated_params(mean, np.full(3, s2))
+    mt, vt = T.moments(m, s)
+    np.testing.assert_allclose(mt, mean, atol=1e-9)
+    np.testing.assert_allclose(vt, var, rtol=1e-6)
+    # -0.3 holds 0.3; near the horizon the variance is capped, and such views are beyond the model.
+    assert var[1] == pytest.approx(s2) and not beyond[1]
+    assert var[0] < s2 and var[2] < var[0] and beyond[0] and beyond[2]

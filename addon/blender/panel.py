@@ -171,6 +171,11 @@ def draw_material(layout, mat, context=None):
         res = layout.box()
         res.label(text="Last edit", icon="CHECKMARK")
         res.label(text=f"reached μ̃ {state.achieved_mu_slope:+.4g}, σ̃² {state.achieved_sigma2:.4g}")
+        fid = state.fidelity()
+        if fid is not None:
+            from ..core.edit.fidelity import describe
+
+            wrapped(res.column(align=True), describe(fid), width, icon="NONE" if fid["meets"] else "INFO")
         res.label(
             text="largest albedo " + ", ".join(f"{v:.3f}" for v in state.max_albedo),
             icon="ERROR" if max(state.max_albedo) > 1.0 else "NONE",

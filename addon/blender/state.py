@@ -180,6 +180,8 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     achieved_sigma2: bpy.props.FloatProperty(name="reached σ̃²")
     max_albedo: bpy.props.FloatVectorProperty(name="Largest albedo", size=3, min=0.0)
     edit_warnings: bpy.props.StringProperty(name="Warnings")
+    # The last edit's per-view figures (JSON of core.edit.fidelity.Fidelity.summary()).
+    edit_fidelity: bpy.props.StringProperty(options={"HIDDEN"})
     plot_caption: bpy.props.StringProperty(options={"HIDDEN"})  # the plot's y ranges, one chart a line
     preview_material: bpy.props.StringProperty(options={"HIDDEN"})  # the edited sphere's material
     preview_path: bpy.props.EnumProperty(
@@ -281,6 +283,12 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def edited_profiles(self):
         return unpack_profiles(self.edited_profiles_data) if self.edited_profiles_data else None
+
+    def fidelity(self):
+        """The last edit's per-view figures as a dict (None if none, or the stored copy is damaged)."""
+        from ..core.edit.fidelity import summary_from_json
+
+        return summary_from_json(self.edit_fidelity)
 
     def fit(self) -> dict:
         """The stored fit as the engine's dict: the one the analysis made (``fit_data``), else

@@ -30,7 +30,7 @@ import numpy as np
 
 ALL_SECTIONS = ("closed", "tables", "trilinear", "memory", "fits", "edit", "preview", "measured", "artist")
 # "live" is part of "artist" (its last table); alone it needs no bpy
-EXTRA_SECTIONS = ("edit-legacy", "live")  # run only when asked for with --only
+EXTRA_SECTIONS = ("live",)  # run only when asked for with --only
 
 
 def _median_time(fn, repeat):
@@ -571,200 +571,6 @@ def bench_fits(quick):
     return out
 
 
-def _witnesses(table, prof, fit, mode, dmu, k):
-    """Two witnesses from one synthesis point (the measured slope + dmu, variance x k): its
-    re-measured fit at gain 1, and again after the edit's energy passes (each view's gain set by
-    its own error), which is a table showing all three sliders' values at once. Each comes with
-    the largest energy error up to ENERGY_VIEWS."""
-    from ..core.edit.legacy import (
-        ENERGY_PASSES,
-        ENERGY_VIEWS,
-        GAIN_RANGE,
-        EditTargets,
-        _energy_ratio,
-        synthesize,
-        target_energy,
-        view_goals,
-    )
-    from ..core.fits import fit_material
-    from ..core.profiles import compute_profiles
-
-    want = target_energy(prof, fit, EditTargets(mode=mode))
-    views = np.asarray(prof.theta_o) <= ENERGY_VIEWS + 1e-9
-    gain, out = np.ones_like(want), []
-    for n in range(ENERGY_PASSES + 1):
-        goals = view_goals(prof, fit, mode, fit["mu_slope"] + dmu, fit["sigma2"] * k) + (gain,)
-        made, _ = synthesize(table, EditTargets(mode=mode), prof, fit, goals)
-        new = compute_profiles(made, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split)
-        ratio = _energy_ratio(new, want)
-        if n in (0, ENERGY_PASSES):
-            out.append((fit_material(new), float(np.abs(1.0 / ratio[views] - 1.0).max(initial=0.0))))
-        if n < ENERGY_PASSES:
-            gain = np.clip(gain * ratio, *GAIN_RANGE)
-    return out
-
-
-def bench_edit_legacy(quick):
-    """(The design issue 18 replaced.) Re-synthesis time and the moment error reached, both modes, near-mirror to broad.
-
-    Three kinds of target. Variance-only edits move σ̃² and leave μ̃ as measured. Slider
-    requests (the measured values moved by fixed steps) may lie outside what any reciprocal
-    table can show. Witnessed targets are the measured moments
-    of a table that one synthesis actually produced, so they are reachable by construction:
-    a miss there is the solver's fault, not the target's."""
-    import samples
-    from ..core.edit.legacy import ENERGY_TOLERANCE, EditTargets, _pair_geometry, edit, synthesize, target_energy
-    from ..core.fits import fit_material
-    from ..core.merl import read_merl
-    from ..core.profiles import compute_profiles
-
-    t0 = time.perf_counter()
-    _pair_geometry()
-    t_geo = time.perf_counter() - t0
-    head = [
-        "| material | mode | target μ̃, σ̃² | reached μ̃, σ̃² | energy off | one synthesis | full edit | rounds | |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    requests, witnessed, outside, variance, shape = [], [], [], [], []
-    witnessed_held, outside_held = [], []
-    shape_keys = ("skew_30", "skew_12", "kurt_40", "kurt_22", "kurt_04")
-
-    def shape_row(name, mode, k, before, after):
-        # Standardized moments are invariant under the warp's affine map: the largest change up
-        # to 60 deg, as a fraction of the largest value the measured profile takes there.
-        views = np.asarray(before.theta_o) <= np.radians(60.0) + 1e-9
-        cells = []
-        for key in shape_keys:
-            was = np.asarray(before["avg"][key], float)[views]
-            now = np.asarray(after["avg"][key], float)[views]
-            cells.append(f"{100 * np.nanmax(np.abs(now - was)) / np.nanmax(np.abs(was)):.0f} %")
-        return f"| {name} | {mode} | {k} | " + " | ".join(cells) + " |"
-
-    def timed_edit(table, tg, prof, fit):
-        rounds = []
-        t0 = time.perf_counter()
-        res = edit(table, tg, prof, fit, progress=lambda k, n: rounds.append(k))
-        return res, time.perf_counter() - t0, max(rounds)  # a bar stopped short gets a last call
-
-    def row(name, mode, target, t_syn, res, t_edit, n_rounds, prof, fit, tg):
-        ok = (
-            res.achieved_mu_slope is not None
-            and abs(res.achieved_mu_slope - target[0]) < 0.01
-            and abs(res.achieved_sigma2 / target[1] - 1) < 0.02
-        )
-        reached = "—" if res.achieved_mu_slope is None else f"{res.achieved_mu_slope:+.3f}, {res.achieved_sigma2:.4f}"
-        # Largest energy error per view and channel up to 80 deg (beyond, broad lobes clip).
-        want = target_energy(prof, fit, tg)
-        got = np.stack([np.nan_to_num(np.asarray(res.profiles[c]["alpha"], float)) for c in "rgb"], axis=1)
-        below = np.asarray(prof.theta_o) <= np.radians(80.0) + 1e-9
-        off = float(np.nanmax(np.abs(got[below] / np.where(want[below] > 0, want[below], np.nan) - 1)))
-        return (
-            f"| {name} | {mode} | {target[0]:+.3f}, {target[1]:.4f} | {reached} | {100 * off:.0f} % | {t_syn} | "
-            f"{t_edit:.1f} s | {n_rounds} | {'OK' if ok else 'miss'} |"
-        )
-
-    names = ("ggx_mirror", "ggx_rough") if quick else ("ggx_mirror", "ggx_glossy", "ggx_rough")
-    for name in names:
-        table = read_merl(samples.sample_path(name))
-        prof = compute_profiles(table)
-        fit = fit_material(prof)
-        for mode in ("warp", "model"):
-            for dmu, k in ((0.0, 1.0), (0.05, 1.5), (0.1, 0.7)):
-                mu = float(np.clip(fit["mu_slope"] + dmu, -1.0, 0.0))
-                s2 = float(min(fit["sigma2"] * k, np.pi**2 / 12))
-                tg = EditTargets(mu_slope=mu, sigma2=s2, mode=mode)
-                t_syn, _ = _median_time(lambda: synthesize(table, tg, prof, fit), 1 if quick else 3)
-                res, t_edit, n = timed_edit(table, tg, prof, fit)
-                requests.append(
-                    row(
-                        name,
-                        mode,
-                        (res.target_mu_slope, res.target_sigma2),
-                        f"{t_syn:.2f} s",
-                        res,
-                        t_edit,
-                        n,
-                        prof,
-                        fit,
-                        tg,
-                    )
-                )
-            for k in (0.7, 1.3):
-                tg = EditTargets(sigma2=fit["sigma2"] * k, mode=mode)
-                res, t_edit, n = timed_edit(table, tg, prof, fit)
-                variance.append(
-                    row(name, mode, (res.target_mu_slope, res.target_sigma2), "", res, t_edit, n, prof, fit, tg)
-                )
-                shape.append(shape_row(name, mode, k, prof, res.profiles))
-            for dmu, k in ((0.05, 1.3), (0.1, 0.7), (-0.05, 1.0)):
-                for held, (f, off) in zip((False, True), _witnesses(table, prof, fit, mode, dmu, k)):
-                    if not -1.0 <= f["mu_slope"] <= 0.0 or (held and off > ENERGY_TOLERANCE):
-                        (outside_held if held else outside).append(
-                            f"{name} {mode}: {f['mu_slope']:+.3f}"
-                            + (f" (energy {100 * off:.0f} % off)" if held else "")
-                        )
-                        continue
-                    tg = EditTargets(mu_slope=f["mu_slope"], sigma2=f["sigma2"], mode=mode)
-                    res, t_edit, n = timed_edit(table, tg, prof, fit)
-                    (witnessed_held if held else witnessed).append(
-                        row(name, mode, (f["mu_slope"], f["sigma2"]), "", res, t_edit, n, prof, fit, tg)
-                    )
-    n_ok = lambda rows: sum(r.endswith("| OK |") for r in rows)  # noqa: E731
-    return (
-        [
-            "### Editing: re-synthesis time and the moments reached",
-            "",
-            "One synthesis = one full 90x90x180 table, both orientations combined (the per-cell pair",
-            f"geometry is cached once per process: {t_geo:.1f} s). A full edit adds correction rounds",
-            "(tabulate, re-measure, step; 10, and up to 6 more while they close in) for the reciprocal",
-            "combination and the clipping.",
-            "OK = within the issue's tolerance (|Δμ̃| < 0.01 and |Δσ̃²|/σ̃² < 2 %). Energy off = the largest",
-            "|re-measured / wanted α − 1| per view and channel up to 80°.",
-            "",
-            f"Variance-only edits, the most common (σ̃² × 0.7 and × 1.3, μ̃ left as measured; "
-            f"{n_ok(variance)}/{len(variance)} OK):",
-            "",
-        ]
-        + head
-        + variance
-        + ["", f"Slider requests ({n_ok(requests)}/{len(requests)} OK):", ""]
-        + head
-        + requests
-        + [
-            "",
-            f"Witnessed targets, energy held: all three sliders reachable by construction "
-            f"({n_ok(witnessed_held)}/{len(witnessed_held)} OK):",
-            "",
-        ]
-        + head
-        + witnessed_held
-        + [
-            "",
-            "No witness (slope outside the slider range [-1, 0], or the energy more than "
-            f"{100 * ENERGY_TOLERANCE:.0f} % off after the passes): " + (", ".join(outside_held) or "none"),
-            "",
-            f"Witnessed moments, made at gain 1 with the energy not held ({n_ok(witnessed)}/{len(witnessed)} OK):",
-            "",
-        ]
-        + head
-        + witnessed
-        + [
-            "",
-            "Syntheses whose measured slope fell outside the slider range [-1, 0] (no witness): "
-            + (", ".join(outside) if outside else "none"),
-            "",
-            "### Editing: does warp keep the measured shape?",
-            "",
-            "Skewness and kurtosis profiles before and after the variance-only edits above: the largest",
-            "change over views up to 60°, as a fraction of the largest value the profile takes there.",
-            "",
-            "| material | mode | σ̃² × | γ30 | γ12 | κ40 | κ22 | κ04 |",
-            "|---|---|---|---|---|---|---|---|",
-        ]
-        + sorted(shape, key=lambda r: r.split(" | ")[1] != "warp")
-    )
-
-
 # Measured materials for the edit bench: across kinds (Neural-BRDF decodes, samples.measured_names()).
 EDIT_MEASURED = {
     "metal": ("rgl/satin_gold", "rgl/ilm_l3_37_metallic", "nielsen/paintedmetal", "rgl/irid_flake_paint1"),
@@ -817,10 +623,9 @@ def bench_edit(quick):
     skewness/kurtosis change up to 60 deg; views whose target is out of reach are listed as a
     share, not counted. Times: the synthesis, and the whole Apply (synthesis + re-measure)."""
     import samples
-    from ..core.edit import edit, legacy
-    from ..core.edit.fidelity import TOLERANCES, measure
+    from ..core.edit import edit
+    from ..core.edit.fidelity import TOLERANCES
     from ..core.edit.reach import reachable_region
-    from ..core.edit.targets import resolve_targets, view_targets
     from ..core.fits import fit_material
     from ..core.merl import read_merl
     from ..core.profiles import compute_profiles
@@ -829,7 +634,7 @@ def bench_edit(quick):
     measured = [(kind, n) for kind, names in EDIT_MEASURED.items() for n in names]
     if quick:
         analytic, measured = analytic[:2], measured[::5]
-    rows, legacy_rows, totals, times = [], [], {}, {"synthesis": [], "apply": []}
+    rows, totals, times = [], {}, {"synthesis": [], "apply": []}
     roundtrip = {}
     for kind, name in [("analytic", n) for n in analytic] + measured:
         table = read_merl(samples.sample_path(name))
@@ -866,20 +671,6 @@ def bench_edit(quick):
                 f"{'—' if not np.isfinite(syn) else f'{syn:.2f} s'} | {apply_s:.2f} s |"
                 + (" clamped" if res.clamped else "")
             )
-            if kind == "analytic" and not t.is_energy_only() and not os.environ.get("BRDF_MOMENTS_BENCH_NO_LEGACY"):
-                # The old pipeline on the same request, measured with the same stick.
-                t0 = time.perf_counter()
-                old = legacy.edit(table, t, prof, fit, remeasure=False)
-                old_s = time.perf_counter() - t0
-                mu, s2, _ = resolve_targets(t, fit)
-                fo = measure(
-                    old.table, view_targets(prof, fit, t, res.target_mu_slope, res.target_sigma2), prof
-                ).summary()
-                legacy_rows.append(
-                    f"| {name} | {label} | "
-                    + " | ".join(_fmt_fig(fo[k], k) for k in EDIT_FIGURES)
-                    + f" | {old_s:.1f} s |"
-                )
     med = lambda a: float(np.nanmedian(a)) if len(a) else float("nan")  # noqa: E731
     head = (
         "| material | kind | edit | energy, worst | variance ratio, median | variance ratio, worst | "
@@ -915,16 +706,6 @@ def bench_edit(quick):
             "(α and colour edits are exact scalings, not counted).",
         ]
     out += ["", head, "|" + "---|" * 13] + rows
-    if legacy_rows:
-        out += [
-            "",
-            "The replaced pipeline (per-view warps averaged per cell, correction rounds; `edit.legacy`) on the "
-            "same requests, measured the same way:",
-            "",
-            "| material | edit | energy, worst | variance ratio, median | variance ratio, worst | mean, worst (rad) | "
-            "skew/kurt, worst ≤60° | time |",
-            "|---|---|---|---|---|---|---|---|",
-        ] + legacy_rows
     return out
 
 
@@ -969,7 +750,6 @@ def main(args):
             "memory": bench_memory,
             "fits": lambda: bench_fits(args.quick),
             "edit": lambda: bench_edit(args.quick),
-            "edit-legacy": lambda: bench_edit_legacy(args.quick),
             "preview": lambda: _bench_preview(args.quick),
             "measured": lambda: _bench_measured(args.quick),
             "artist": lambda: _bench_artist(args.quick),

@@ -8,8 +8,6 @@ Modules, in the order an edit runs through them:
   (reciprocal by construction) whose controls are solved with exact operator sensitivities.
 - ``solve``: ``edit`` itself (sliders -> targets -> controls -> table -> re-measure).
 - ``fidelity``: the measuring stick, every view of the written table against its target.
-- ``legacy``: the replaced design (per-view warps averaged per cell, then correction rounds),
-  kept for the benchmark's comparison.
 The truncated-Gaussian solver shared with the preview and OSL is ``core.truncated``.
 """
 

@@ -14,6 +14,7 @@ Views whose target is out of reach (``reach.view_reachable``) are listed, not co
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 
@@ -70,10 +71,44 @@ class Fidelity:
         return sum(len(c.excluded_deg) for c in self.channels.values()) / n if n else 0.0
 
     def summary(self) -> dict:
-        out = {f: self.worst(f) for f in ("energy", "variance_median", "variance_worst", "mean", "shape")}
+        out = {f: self.worst(f) for f in FIGURES}
         out["excluded"] = self.excluded_fraction
         out["meets"] = self.meets()
         return out
+
+    def to_json(self) -> str:
+        """The summary as JSON (a figure not measured is null)."""
+        s = self.summary()
+        return json.dumps({k: (v if isinstance(v, bool) or np.isfinite(v) else None) for k, v in s.items()})
+
+
+FIGURES = ("energy", "variance_median", "variance_worst", "mean", "shape")
+
+
+def summary_from_json(text: str):
+    """``Fidelity.to_json``'s dict back (null -> nan); None for no text or a damaged copy."""
+    if not text:
+        return None
+    try:
+        d = json.loads(text)
+        out = {k: float("nan") if d[k] is None else float(d[k]) for k in FIGURES + ("excluded",)}
+        out["meets"] = bool(d["meets"])
+    except (ValueError, TypeError, KeyError):
+        return None
+    return out
+
+
+def describe(summary) -> str:
+    """One line for the panel and the report: the worst view of each figure."""
+    pct = lambda v: "—" if not math.isfinite(v) else f"{100 * v:.1f} %"  # noqa: E731
+    text = (
+        f"per view: energy ≤ {pct(summary['energy'])}, variance {pct(summary['variance_median'])} median "
+        f"(≤ {pct(summary['variance_worst'])}), mean ≤ "
+        + ("—" if not math.isfinite(summary["mean"]) else f"{summary['mean']:.3f} rad")
+    )
+    if summary["excluded"] > 0:
+        text += f"; {100 * summary['excluded']:.0f} % of views out of reach"
+    return text
 
 
 def _stack(prof, key):
@@ -110,6 +145,8 @@ def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) ->
             _stack(original, "mu_theta"),
             0.5 * (_stack(original, "sigma_tt") + _stack(original, "sigma_pp")),
         )
+    if targets.beyond is not None:
+        reachable = reachable & ~targets.beyond
     use = counted & reachable
     alpha = np.nan_to_num(_stack(prof, "alpha"))
     with np.errstate(divide="ignore", invalid="ignore"):

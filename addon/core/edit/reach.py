@@ -163,7 +163,7 @@ class ReachableRegion:
 
 def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableRegion:
     """The region for one material's profiles and fit (warp or model targets)."""
-    from .targets import EditTargets, view_targets
+    from .targets import EditTargets, model_view_moments, view_targets
 
     theta = np.asarray(prof.theta_o, float)
     s0, m0 = float(fit["sigma2"]), float(fit["mu_slope"])
@@ -173,7 +173,13 @@ def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableR
     mus = np.linspace(min(-1.0, m0) - 0.05, max(0.0, m0), n_mu)
     base = view_targets(prof, fit, EditTargets(mode=mode), m0, s0)
     counted = counted_views(theta, base.alpha)
-    mm, mv = base.mean, base.variance
+    if base.beyond is not None:
+        # Views the model cannot show even at the material's own fit are the model's limit,
+        # not the slider's: they do not count toward the region.
+        counted = counted & ~base.beyond
+    # The reach test compares with what the table holds now: the measured means and variances.
+    st = lambda k: np.stack([np.asarray(prof[c][k], float) for c in "rgb"], axis=1)  # noqa: E731
+    mm, mv = st("mu_theta"), 0.5 * (st("sigma_tt") + st("sigma_pp"))
     lo, hi = np.full(len(grid), np.nan), np.full(len(grid), np.nan)
     n = counted.sum()
     for k, s2 in enumerate(grid):
@@ -181,9 +187,12 @@ def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableR
         # All mean slopes at once: (mu, V, C).
         if mode == "warp":
             mean = vt.mean[None] + (mus - m0)[:, None, None] * theta[None, :, None]
+            var_tt, var_pp, beyond = vt.var_tt[None], vt.var_pp[None], False
         else:
-            mean = mus[:, None, None] * theta[None, :, None] * np.ones((1, 1, 3))
-        r = view_reachable(theta, mean, vt.var_tt[None], vt.var_pp[None], mm[None], mv[None])
+            mean, var, beyond = model_view_moments(mus[:, None] * theta[None, :], s2, fast=True)
+            mean, var, beyond = (np.repeat(a[..., None], 3, axis=-1) for a in (mean, var, beyond))
+            var_tt = var_pp = var
+        r = view_reachable(theta, mean, var_tt, var_pp, mm[None], mv[None]) & ~beyond
         ok_rows = (n > 0) & ((r & counted[None]).sum(axis=(1, 2)) >= MIN_REACHABLE * n)
         if ok_rows.any():
             lo[k], hi[k] = mus[ok_rows].min(), mus[ok_rows].max()

@@ -252,14 +252,6 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **
     )
 
 
-# Model mode stays on the replaced pipeline by default: on the demo's edit (ggx_glossy, model,
-# sigma2 x 2) the reciprocal synthesis holds the views it can reach but re-fits sigma2 0.116 for
-# 0.239 (the grazing views' targets are out of reach), and the Blender lane asserts the fit.
-# Per view it measured better (ggx_glossy model x 0.8: energy 2 % vs 42 %, variance 3 %/9 % vs
-# 20 %/25 %): pass model_synthesis="reciprocal" to use it.
-MODEL_SYNTHESIS = "legacy"
-
-
 def edit(
     table: MerlTable,
     targets: EditTargets,
@@ -268,7 +260,6 @@ def edit(
     remeasure: bool = True,
     progress=None,
     region: ReachableRegion | None = None,
-    model_synthesis: str | None = None,
     draft: bool = False,
 ) -> EditResult:
     """Re-synthesize ``table`` for the slider ``targets``. Never modifies ``table``.
@@ -276,8 +267,8 @@ def edit(
     The request is clamped into the material's reachable region (reported), the per-view
     targets follow from the sliders (``targets.view_targets``), and one reciprocal transform
     of the specular table is solved to meet them (``reciprocal``). ``progress(done, total)``
-    is called once per stage. ``draft``: the quick, rougher synthesis a slider drag shows first
-    (model mode on the replaced pipeline has no draft: it runs in full)."""
+    is called once per stage. ``draft``: the quick, rougher synthesis a slider drag shows first.
+    Model mode runs the same synthesis toward the model's targets (``targets.view_targets``)."""
     if prof is None:
         prof = compute_profiles(table)
     if fit is None:
@@ -303,25 +294,6 @@ def edit(
         res = _finish(MerlTable(rho, table.valid.copy(), None), mu_t, s2_t, warnings, prof, remeasure, vt)
         tell(1, 1)
         return res
-    if targets.mode == "model" and (model_synthesis or MODEL_SYNTHESIS) == "legacy":
-        from . import legacy
-
-        t0 = time.perf_counter()
-        old = legacy.edit(table, targets, prof, fit, remeasure=remeasure, progress=progress)
-        vt = view_targets(prof, fit, targets, old.target_mu_slope, old.target_sigma2)
-        fid = measure(old.profiles, vt, prof) if old.profiles is not None else None
-        return EditResult(
-            old.table,
-            old.target_mu_slope,
-            old.target_sigma2,
-            old.achieved_mu_slope,
-            old.achieved_sigma2,
-            old.max_albedo,
-            list(old.warnings),
-            old.profiles,
-            fid,
-            timings={"synthesis+rounds": time.perf_counter() - t0},
-        )
     t0 = time.perf_counter()
     if region is None:
         region = reachable_region(prof, fit, mode=targets.mode)

@@ -11,9 +11,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, correlation_curve, energy_curve
+from ..geometry import HALF_PI
 from ..profiles import Profiles
+from ..truncated import CAP_FRACTION, reachable_variance, variance_cap_fast
 
 MODES = ("warp", "model")
+# Model mode's mean is kept this far (relative) inside the horizon: a mean on the edge has no spread.
+MODEL_EDGE = 0.02
+# A model view is beyond the model when the truncation caps its variance by more than this.
+BEYOND_MODEL = 0.01
 RGB = ("r", "g", "b")
 
 
@@ -128,6 +134,9 @@ class ViewTargets:
     mode: str = "warp"
     mu_slope: float = 0.0  # the sliders as resolved
     sigma2: float = 0.0
+    # (V, 3) model mode: views where the model's own lobe cannot have the slider's variance (its
+    # mean too near the horizon): listed as out of reach, not counted. None in warp mode.
+    beyond: np.ndarray | None = None
 
     @property
     def variance(self):
@@ -142,6 +151,18 @@ def _stack(prof, key):
     return np.stack([np.asarray(prof[ch][key], float) for ch in RGB], axis=1)
 
 
+def model_view_moments(location, s2, fast=False):
+    """Model mode's per-view mean and variance for lobe locations mu~' theta_o and variance
+    sigma~^2' (any shape), and where the model cannot show that variance (``beyond``).
+    ``fast``: the truncated limit read off its fine grid (the region's scans over the plane)."""
+    mean = np.clip(location, -HALF_PI * (1.0 - MODEL_EDGE), HALF_PI * (1.0 - MODEL_EDGE))
+    if fast:
+        var = np.minimum(np.maximum(s2, 1e-14), CAP_FRACTION * variance_cap_fast(mean))
+    else:
+        var = reachable_variance(mean, s2)
+    return mean, var, var < (1.0 - BEYOND_MODEL) * s2
+
+
 def view_targets(prof: Profiles, fit: dict, t: EditTargets, mu: float, s2: float) -> ViewTargets:
     """The per-view targets of SPEC §3 for resolved sliders ``mu``, ``s2``.
 
@@ -149,10 +170,12 @@ def view_targets(prof: Profiles, fit: dict, t: EditTargets, mu: float, s2: float
     Sigma' = (s2' / s2) Sigma, shape kept. Model: the fitted spline, mu~' theta_o, s2' on both axes."""
     theta = np.asarray(prof.theta_o, float)
     if t.mode == "model":
-        full = np.ones((len(theta), 3))
-        return ViewTargets(
-            theta, model_energy(prof, fit, t), (mu * theta)[:, None] * full, s2 * full, s2 * full, None, "model", mu, s2
-        )
+        # The model's slice is a truncated Gaussian on [-pi/2, pi/2] (Eq. 8): its mean is mu~' theta_o
+        # kept inside the domain, and its variance sigma~^2' capped by the one truncated solver's
+        # rule (``truncated.reachable_variance``), as the moment-model preview draws it. Near the
+        # horizon no distribution has mu~' theta_o's mean with a wide variance.
+        mean, var, beyond = (np.repeat(a[:, None], 3, axis=1) for a in model_view_moments(mu * theta, s2))
+        return ViewTargets(theta, model_energy(prof, fit, t), mean, var, var, None, "model", mu, s2, beyond)
     ratio = s2 / fit["sigma2"]
     mean = _stack(prof, "mu_theta") + (mu - fit["mu_slope"]) * theta[:, None]
     return ViewTargets(

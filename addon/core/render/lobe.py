@@ -32,32 +32,21 @@ MAX_S = _truncated.MAX_S
 # --- truncated Gaussians on [-pi/2, pi/2] ---------------------------------------------------
 
 
-def _oriented(m, s):
-    """Standardized bounds, mirrored when the interval lies mostly above the mean.
-
-    ndtr keeps full relative precision only in the lower tail, so the side of the interval
-    nearer -inf is used; returns (a, b, flip) with flip = -1 where x was mirrored."""
-    m = np.asarray(m, float)
-    s = np.asarray(s, float)
-    a, b = (-HALF_PI - m) / s, (HALF_PI - m) / s
-    flip = np.where(a + b > 0.0, -1.0, 1.0)
-    lo = np.where(flip < 0, -b, a)
-    hi = np.where(flip < 0, -a, b)
-    return lo, hi, flip
-
-
-def truncnorm_mass(m, s):
-    """Z = P(-pi/2 <= X <= pi/2) for X ~ N(m, s^2)."""
-    lo, hi, _ = _oriented(m, s)
-    return np.maximum(ndtr(hi) - ndtr(lo), 1e-300)
+# The truncated Gaussian's mass and its tail-safe bounds are the one solver's (core.truncated).
+_oriented = _truncated._oriented
+truncnorm_mass = _truncated.mass
 
 
 def truncnorm_pdf(x, m, s):
-    """Density of N(m, s^2) truncated to [-pi/2, pi/2] (Eq. 8: normalized on the interval)."""
+    """Density of N(m, s^2) truncated to [-pi/2, pi/2] (Eq. 8: normalized on the interval), formed
+    in logs so that a lobe centred beyond the horizon (its mass a sliver of the far tail) stays
+    finite and right."""
     x = np.asarray(x, float)
-    z = truncnorm_mass(m, s)
+    m = np.asarray(m, float)
+    s = np.asarray(s, float)
+    log_z = _truncated.log_mass((-HALF_PI - m) / s, (HALF_PI - m) / s) + np.log(s * _SQRT_2PI)
     inside = np.abs(x) <= HALF_PI
-    return np.where(inside, np.exp(-0.5 * ((x - m) / s) ** 2) / (s * _SQRT_2PI * z), 0.0)
+    return np.where(inside, np.exp(-0.5 * ((x - m) / s) ** 2 - log_z), 0.0)
 
 
 def truncnorm_sample(m, s, u):
