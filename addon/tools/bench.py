@@ -598,6 +598,9 @@ def _edit_requests(fit, region):
         ("σ̃² ×2", EditTargets(sigma2=min(s2 * 2.0, np.pi**2 / 12))),
         ("α ×0.8", EditTargets(strength=0.8)),
         ("colour", EditTargets(colour=(1.0, 0.7, 0.4))),
+        # Model mode (the paper's lobes, Eq. 7-8) at the fitted sliders, and narrowed.
+        ("model", EditTargets(mode="model")),
+        ("model σ̃² ×0.7", EditTargets(mode="model", sigma2=s2 * 0.7)),
     ]
     lo, hi = region.mu_range(s2)
     for d in (+0.05, -0.05):
@@ -642,10 +645,11 @@ def bench_edit(quick):
         fit = fit_material(prof)
         if fit.get("mu_slope") is None:
             continue
-        region = reachable_region(prof, fit)
+        regions = {mode: reachable_region(prof, fit, mode=mode) for mode in ("warp", "model")}
+        region = regions["warp"]
         for label, t in _edit_requests(fit, region):
             t0 = time.perf_counter()
-            res = edit(table, t, prof, fit, region=region)
+            res = edit(table, t, prof, fit, region=regions[t.mode])  # computed once, at Analyse
             apply_s = time.perf_counter() - t0
             f = res.fidelity.summary()
             syn = res.timings.get("synthesis", float("nan"))
