@@ -200,3 +200,61 @@ def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableR
     smin = float(grid[have].min()) if have.any() else s0
     smax = float(grid[have].max()) if have.any() else s0
     return ReachableRegion(grid, lo, hi, smin, smax, (m0, s0))
+
+
+def target_defect(table, prof, vt, n_theta=48, n_phi=24):
+    """Per view: how far warp targets are from any reciprocal table (a diagnostic the bench reports).
+
+    Warp mode promises each view's measured slice moved and scaled in the view-centred
+    (theta, phi) coordinates (shape kept): a target BRDF rho*(w_i; w_o) built view by view from
+    the measured table. A reciprocal table has rho(w_i, w_o) = rho(w_o, w_i); rho* need not. The
+    defect of view w_o is the energy-weighted mean of |log(rho*(w_i; w_o) / rho*(w_o; w_i))| over
+    its slice: 0 for the identity, small where every view's target can hold at once, large where
+    two views ask different values of the cells they share (a narrow lobe moved off the mirror; a
+    broad lobe narrowed about the normal). Average channel, nearest-cell lookups."""
+    from ..geometry import view_centred, view_centred_angles
+    from ..merl import MerlTable, lookup
+
+    theta = np.asarray(prof.theta_o, float)
+    p = prof["avg"]
+    kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
+    spec = MerlTable(np.maximum(table.rho - kd[:, None], 0.0) * table.valid, table.valid, None)
+    mu0 = np.nan_to_num(np.asarray(p["mu_theta"], float))
+    a0 = np.nan_to_num(np.asarray(p["alpha"], float))
+    var0 = np.nan_to_num(0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float)), nan=1.0)
+    mu1, a1 = vt.mean.mean(axis=1), vt.alpha.mean(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.nan_to_num(vt.variance.mean(axis=1) / var0, nan=1.0, posinf=1.0)
+
+    def target(t, f, e):
+        """rho*(m(t, f); view of elevation e), the view's measured slice moved and scaled."""
+        m0, m1, r, at, am = (np.interp(e, theta, v) for v in (mu0, mu1, ratio, a1, a0))
+        sr = np.sqrt(np.maximum(r, 1e-12))
+        t0, f0 = m0 + (t - m1) / sr, f / sr
+        inside = (np.abs(t0) < HALF_PI) & (np.abs(f0) < HALF_PI)
+        wo = np.stack([np.sin(e), np.zeros_like(e), np.cos(e)], axis=-1)
+        rho = lookup(spec, view_centred(t0, f0), wo)[0].mean(axis=0) * inside
+        # density in (theta, phi): rho cos(theta_i) cos(phi) / alpha, scaled by 1/r; back to rho*
+        dens = rho * np.cos(t0) * np.cos(f0) ** 2 / np.maximum(am, 1e-300) / np.maximum(r, 1e-12)
+        return at * dens / np.maximum(np.cos(t) * np.cos(f) ** 2, 1e-9)
+
+    t = (np.arange(n_theta) + 0.5) / n_theta * np.pi - HALF_PI
+    f = (np.arange(n_phi) + 0.5) / n_phi * np.pi - HALF_PI
+    T, F = np.meshgrid(t, f, indexing="ij")
+    x = view_centred(T, F)
+    elev = np.arccos(np.clip(x[..., 2], -1.0, 1.0))
+    az = np.arctan2(x[..., 1], x[..., 0])
+    out = np.zeros(len(theta))
+    for k, e in enumerate(theta):
+        fwd = target(T, F, np.full(T.shape, e))
+        # The swapped pair: w_o seen from the view w_i, turned about the normal so that w_i has
+        # azimuth 0 (isotropy).
+        wo = np.array([np.sin(e), 0.0, np.cos(e)])
+        c, s = np.cos(az), np.sin(az)
+        turned = np.stack([c * wo[0], -s * wo[0], np.full(az.shape, wo[2])], axis=-1)
+        back = target(*view_centred_angles(turned), elev)
+        w = fwd * np.cos(T) * np.cos(F) ** 2
+        floor = 1e-6 * max(float(fwd.max(initial=0.0)), 1e-300)
+        d = np.abs(np.log(np.maximum(fwd, floor) / np.maximum(back, floor)))
+        out[k] = float((w * d).sum() / max(float(w.sum()), 1e-300))
+    return out
