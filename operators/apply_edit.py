@@ -99,8 +99,16 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
                 prof = compute_profiles(table, floor=floor)
                 fit = fit_material(prof)
             report_progress(1, 10)
+            # keep: the live preview's synthesis of these sliders (inherited by this forked
+            # child) is written as is, only re-measured here.
             res = edit(
-                table, targets, prof, fit, region=region, progress=lambda d, t: report_progress(1 + 8 * d // t, 10)
+                table,
+                targets,
+                prof,
+                fit,
+                region=region,
+                keep=True,
+                progress=lambda d, t: report_progress(1 + 8 * d // t, 10),
             )
             if scale:
                 res = scale_to_albedo(res)

@@ -106,11 +106,8 @@ def store_analysis(mat, path, result) -> str:
         state.principled_data = ""
     plot_image(mat, prof, fit, edited=None if again else False, later=True)
     region_image(mat, later=True)
-    if fit.get("mu_slope") is not None and not bpy.app.background:
-        import threading
+    if fit.get("mu_slope") is not None:
+        from ..addon.blender.jobs import warm_up
 
-        from ..addon.core.edit.solve import warm
-
-        # Ready for the first slider move and Apply (a forked job child inherits it).
-        threading.Thread(target=warm, args=(prof.theta_o,), name="brdf_moments: warm-up", daemon=True).start()
+        warm_up(prof.theta_o)  # ready for the first slider move and Apply
     return f"Analysed {name}: μ̃ {state.fit_mu_slope:+.3f}, σ̃² {state.fit_sigma2:.4f}"

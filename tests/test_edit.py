@@ -139,3 +139,31 @@ def test_reported_moments_are_the_written_tables(glossy, tmp_path):
     f = fit_material(again)
     assert res.achieved_mu_slope == pytest.approx(f["mu_slope"], abs=1e-6)
     assert res.achieved_sigma2 == pytest.approx(f["sigma2"], rel=1e-5)
+
+
+@pytest.mark.slow
+def test_a_kept_synthesis_is_reused_only_for_the_same_inputs(glossy):
+    """``keep=True`` (the live preview, then Apply): an Apply of the same sliders writes the kept
+    table, bit for bit what solving again gives, even from a table read afresh; other sliders or
+    another table solve again; without ``keep`` (the CLI, the benchmarks) nothing is reused."""
+    from addon.core.edit import solve
+
+    table, prof, fit = glossy
+    targets = EditTargets(sigma2=fit["sigma2"] * 1.2)
+    fresh = edit(table, targets, prof, fit, remeasure=False)
+    assert not fresh.reused
+    solve._KEPT.clear()
+    first = edit(table, targets, prof, fit, remeasure=False, keep=True)
+    assert not first.reused and len(solve._KEPT) == 1
+    again = edit(table.copy(), targets, prof, fit, keep=True)  # another object, same content
+    assert again.reused
+    np.testing.assert_array_equal(again.table.rho, fresh.table.rho)
+    assert again.profiles is not None  # re-measured all the same
+    again.table.rho[:] = 0.0  # the caller owns what it got: the kept table is untouched
+    assert edit(table, targets, prof, fit, keep=True).table.rho.max() > 0
+    assert not edit(table, targets, prof, fit).reused  # not asked to keep: solved again
+    assert not edit(table, EditTargets(sigma2=fit["sigma2"] * 1.21), prof, fit, keep=True).reused
+    other = table.copy()
+    other.rho[0, np.flatnonzero(other.valid)[0]] *= 1.5
+    assert not edit(other, targets, prof, fit, keep=True).reused
+    solve._KEPT.clear()

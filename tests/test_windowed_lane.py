@@ -127,6 +127,8 @@ def test_the_session_ran_to_the_end_without_a_traceback(lane):
         "build_preview",
         "save",
         "reopen",
+        "apply_at_once",
+        "apply_quiet",
     ]
 
 
@@ -165,7 +167,9 @@ def test_input_reaches_the_ui_while_apply_runs(lane):
     inp = data["input"]
     assert inp["sidebar_after"] != inp["sidebar_before"]  # the N key toggled the 3D view's sidebar
     assert inp["job_running_after_key"]  # ... while the job was running
-    assert inp["job_running_after_right_click"]  # a right-click did not cancel it
+    # A right-click did not cancel it (it finished), and it was running when the right-click
+    # arrived (the probe below). Whether it still runs a second later depends on how fast the
+    # Apply is (4-7 s here now), so that is not asserted.
     assert data["steps"]["apply"]["job"]["outcome"] == "finished"
     # The probe handler behind the job got the key and the right-click while the job ran,
     # and not the Esc that cancelled the second Apply (the job keeps that one).
@@ -239,6 +243,40 @@ def test_build_preview_then_save_and_reopen(lane):
     ):
         assert back[key] == saved[key], key
     assert back["scenes"] == saved["scenes"]
+
+
+def test_an_apply_in_the_reopened_file(lane):
+    """Reopened, the file is ready to edit: the edits' shared setup was built by the file-load
+    handler (not left to the Apply's child); a slider move, the live preview settling, then an
+    Apply with hands off, which reaches the slider. Its time is the figure BENCHMARKS quotes for
+    Apply in a window (target 3 s; not asserted, the machine is shared)."""
+    data, _, _, _ = lane
+    st = data["steps"]
+    assert data["warm_after_reopen"]
+    quiet = st["apply_quiet"]
+    assert quiet["job"]["label"] == "Re-synthesizing" and quiet["job"]["outcome"] == "finished", quiet["job"]
+    state = quiet["state"]
+    assert state["sigma2"] == pytest.approx(1.3 * state["fit_sigma2"], rel=1e-5)
+    # The re-fitted variance moved most of the way, and the panel says so if it fell short (the
+    # per-view figures are the measure, BENCHMARKS "Editing, per view"; gold x1.3 refits ~7 % low).
+    moved = (state["achieved_sigma2"] - state["fit_sigma2"]) / (state["sigma2"] - state["fit_sigma2"])
+    assert moved > 0.5, state
+    if state["achieved_sigma2"] != pytest.approx(state["sigma2"], rel=0.02):
+        assert f"variance {state['achieved_sigma2']:.4g} for {state['sigma2']:.4g}" in state["edit_warnings"], state
+    assert state["edited_path"] != st["reopen"]["state"]["edited_path"] and os.path.isfile(state["edited_path"])
+    # The live preview ran for these sliders before Apply, so Apply wrote its kept synthesis:
+    # the synthesis stage (progress 3/10 to 6/10) is a lookup, not a solve (3-5 s here).
+    assert data["live_before_quiet_apply"]
+    at = {(d, t): m for m, d, t in quiet["job"]["marks"]}
+    synthesis = at[(6, 10)] - at[(3, 10)]
+    assert synthesis < 1.0, quiet["job"]["marks"]
+    at_once = st["apply_at_once"]["job"]
+    assert at_once["outcome"] == "finished", at_once
+    print(f"\nApply pressed with the slider's move, hands off: {at_once['end'] - at_once['start']:.1f} s")
+    print(
+        f"Apply in the reopened file after the live preview, hands off: "
+        f"{quiet['job']['end'] - quiet['job']['start']:.1f} s (synthesis stage {synthesis:.2f} s)"
+    )
 
 
 def test_the_main_loop_keeps_running_during_jobs(lane):

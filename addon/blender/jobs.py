@@ -58,6 +58,17 @@ def _ended(op, outcome):
     del HISTORY[:-50]
 
 
+def warm_up(theta_o):
+    """Build in a thread what every edit of these views shares (``core.edit.solve.warm``), so
+    that the first slider move, and each Apply's forked child, find it ready (~1 s cold).
+    Nothing to gain without a window: there, work runs in place and builds it once anyway."""
+    if bpy.app.background:
+        return
+    from ..core.edit.solve import warm
+
+    threading.Thread(target=warm, args=(list(theta_o),), name="brdf_moments: warm-up", daemon=True).start()
+
+
 # Errors that mean "this input or these sliders cannot be used", reported in one line.
 USER_ERRORS = (OSError, ValueError, MemoryError, ArithmeticError)
 

@@ -107,13 +107,24 @@ def _job(mat):
         targets=state.slider_targets(),
         prof=state.profiles(),
         fit=state.fit(),
+        region=state.region(),  # Apply's: so that its synthesis is the one kept here
         env=load_environment(resolve_environment(state.preview_env or None)),
         d=layout.diameter,
     )
 
 
 def _work(job, stale=lambda: False, post=lambda stage, rgb, cov: None):
-    work(source_table(job["source"]), job["targets"], job["prof"], job["fit"], job["env"], job["d"], stale, post)
+    work(
+        source_table(job["source"]),
+        job["targets"],
+        job["prof"],
+        job["fit"],
+        job["env"],
+        job["d"],
+        stale,
+        post,
+        region=job["region"],
+    )
 
 
 def update_now(mat, refine=False):

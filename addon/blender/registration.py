@@ -34,16 +34,23 @@ CLASSES = (*state.CLASSES, *OPERATORS, *panel.CLASSES)
 
 @bpy.app.handlers.persistent
 def _file_loaded(*_args):
-    """A reopened .blend: plots redrawn from the stored profiles, OSL edits find their texture."""
+    """A reopened .blend: plots redrawn from the stored profiles, OSL edits find their texture,
+    and the edits' shared setup built ahead of the first slider move or Apply, as after Analyse."""
     from . import material
+    from .jobs import warm_up
 
+    views = set()
     for mat in bpy.data.materials:
         st = getattr(mat, "brdf_moments", None)
         if st is not None and st.analysed and st.profiles_data:
             try:
                 state.plot_image(mat)
+                if st.fit().get("mu_slope") is not None:
+                    views.add(tuple(st.profiles().theta_o))
             except (ValueError, RuntimeError):
                 pass
+    for theta_o in sorted(views)[:1]:  # one set of views is kept per process (solve._rings)
+        warm_up(theta_o)
     material.relink_textures()
 
 

@@ -331,6 +331,38 @@ def session():
     yield 0.5
     record("reopen", reopened_scene=reopened_scene, shot=screenshot("reopened"))
 
+    # An Apply as an artist makes it in the reopened file: a new slider value, Apply, then wait
+    # with hands off (no screenshots, keys or redraws from the driver): the Apply time to quote.
+    yield 2.0
+    solve = sys.modules.get("brdf_moments.addon.core.edit.solve")
+    result["warm_after_reopen"] = bool(solve and solve._RINGS)  # built by the file-load handler
+    s = bpy.data.materials[MAT].brdf_moments
+    s.mu_slope = max(-1.0, min(0.0, s.fit_mu_slope))  # the slope back at the fit: a variance edit
+    # First a value typed and Apply pressed at once: the Apply's child solves while the live
+    # preview of the same value starts in Blender (the worst case for the Apply's time).
+    s.sigma2 = s.fit_sigma2 * 1.25
+    status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
+    yield from wait_jobs()
+    record("apply_at_once", status=status, message=message, job=last_job())
+    for _ in range(300):  # the live preview it started
+        if not [t for t in threading.enumerate() if t.name == "brdf_moments: live preview" and t.is_alive()]:
+            break
+        yield 0.1
+    s.sigma2 = s.fit_sigma2 * 1.3
+    # The artist looks at the live preview until it settles, then presses Apply.
+    live_seen = False
+    for _ in range(300):
+        yield 0.1
+        live = [t for t in threading.enumerate() if t.name == "brdf_moments: live preview" and t.is_alive()]
+        live_seen = live_seen or bool(live)
+        if live_seen and not live:
+            break
+    result["live_before_quiet_apply"] = live_seen
+    status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
+    yield from wait_jobs()
+    solve = sys.modules.get("brdf_moments.addon.core.edit.solve")
+    record("apply_quiet", status=status, message=message, job=last_job())
+
 
 # --- the timers -------------------------------------------------------------------------------
 

@@ -36,6 +36,7 @@ class EditResult:
     clamped: bool = False  # the request lay outside the region and was moved to its edge
     requested: tuple | None = None  # (mu, sigma2) before clamping
     timings: dict = field(default_factory=dict)  # seconds: synthesis, remeasure
+    reused: bool = False  # the synthesis was a kept one (``edit(..., keep=True)``), not solved again
 
     @property
     def energy_gain(self) -> bool:
@@ -160,6 +161,27 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, val
     return R.tabulate(table, rgb, controls, kd, unit), controls, report
 
 
+# One full synthesis kept per process (``edit(..., keep=True)``): the live preview's, made in a
+# Blender thread when a slider settles, is what an Apply of the same sliders writes; the Apply's
+# forked child inherits it and only re-measures. Keyed by the content of everything
+# ``synthesize`` reads, so a table read afresh from the same file finds it; one entry bounds it.
+_KEPT: dict = {}
+
+
+def _synthesis_key(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets) -> str:
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=20)
+    for a in (table.rho, table.valid, prof.theta_o, prof.kd, vt.theta_o, vt.alpha, vt.mean, vt.var_tt, vt.var_pp):
+        a = np.ascontiguousarray(a)
+        h.update(repr((a.dtype.str, a.shape)).encode())
+        h.update(a.data)
+    for k in ("alpha", "mu_theta", "sigma_tt", "sigma_pp"):
+        h.update(np.ascontiguousarray(prof["avg"][k], "<f8").data)
+    h.update(repr((prof.split, fit.get("mu_slope"), fit.get("sigma2"), vt.mode, vt.mu_slope, vt.sigma2)).encode())
+    return h.hexdigest()
+
+
 def _view_reach(prof, vt):
     from .reach import view_reachable
 
@@ -261,6 +283,7 @@ def edit(
     progress=None,
     region: ReachableRegion | None = None,
     draft: bool = False,
+    keep: bool = False,
 ) -> EditResult:
     """Re-synthesize ``table`` for the slider ``targets``. Never modifies ``table``.
 
@@ -268,7 +291,9 @@ def edit(
     targets follow from the sliders (``targets.view_targets``), and one reciprocal transform
     of the specular table is solved to meet them (``reciprocal``). ``progress(done, total)``
     is called once per stage. ``draft``: the quick, rougher synthesis a slider drag shows first.
-    Model mode runs the same synthesis toward the model's targets (``targets.view_targets``)."""
+    Model mode runs the same synthesis toward the model's targets (``targets.view_targets``).
+    ``keep``: remember this full synthesis (one per process), and take a remembered one made
+    from the same inputs instead of solving again (the live preview's, for Apply)."""
     if prof is None:
         prof = compute_profiles(table)
     if fit is None:
@@ -308,7 +333,15 @@ def edit(
     tell(1, 3)
     vt = view_targets(prof, fit, targets, mu_t, s2_t)
     t_reg = time.perf_counter() - t0
-    out, controls, report = synthesize(table, prof, fit, vt, draft=draft)
+    key = _synthesis_key(table, prof, fit, vt) if keep and not draft else None
+    kept = _KEPT.get(key) if key is not None else None
+    if kept is not None:
+        out = kept.copy()  # the caller owns its table
+    else:
+        out = synthesize(table, prof, fit, vt, draft=draft)[0]
+        if key is not None:
+            _KEPT.clear()
+            _KEPT[key] = out.copy()
     t_syn = time.perf_counter() - t0
     tell(2, 3)
     res = _finish(
@@ -324,6 +357,7 @@ def edit(
         clamped=clamped,
         requested=requested,
         timings={"synthesis": t_syn, "region": t_reg},
+        reused=kept is not None,
     )
     tell(3, 3)
     return res

@@ -18,12 +18,12 @@ LIVE_DIAMETER_DIV = 4  # the first live image: a quarter of the sphere's resolut
 LIVE_SAMPLES = 16
 
 
-def fast_edit(table, targets, prof, fit, draft=False, region=None):
+def fast_edit(table, targets, prof, fit, draft=False, region=None, keep=False):
     """The edit's synthesis, not re-measured: what a slider drag can afford (``draft``: the
-    quick, rougher solve shown first)."""
+    quick, rougher solve shown first; ``keep``: remembered for an Apply of the same sliders)."""
     from ..edit import edit
 
-    return edit(table, targets, prof, fit, remeasure=False, draft=draft, region=region).table
+    return edit(table, targets, prof, fit, remeasure=False, draft=draft, region=region, keep=keep).table
 
 
 def _profiles_key(prof, fit, mode):
@@ -63,12 +63,14 @@ def source_table(path):
     return _TABLES[key]
 
 
-def work(table, targets, prof, fit, env, diameter, stale=lambda: False, post=lambda stage, rgb, cov: None):
+def work(table, targets, prof, fit, env, diameter, stale=lambda: False, post=lambda stage, rgb, cov: None, region=None):
     """The draft image, then the refined one, each handed to ``post(stage, rgb, cov)``
-    ('live', then 'refined'); stops early when ``stale()`` says a newer move came."""
+    ('live', then 'refined'); stops early when ``stale()`` says a newer move came. ``region``:
+    the material's stored reachable region (else computed once here). The full synthesis is
+    kept (``edit(..., keep=True)``): an Apply of the same sliders writes it without solving again."""
     from . import TableBRDF, bake_sphere
 
-    region = region_for(prof, fit, targets.mode)
+    region = region if region is not None else region_for(prof, fit, targets.mode)
     new = fast_edit(table, targets, prof, fit, draft=True, region=region)
     if stale():
         return
@@ -76,7 +78,7 @@ def work(table, targets, prof, fit, env, diameter, stale=lambda: False, post=lam
     post("live", rgb, cov)
     if stale():
         return
-    new = fast_edit(table, targets, prof, fit, region=region)
+    new = fast_edit(table, targets, prof, fit, region=region, keep=True)
     if stale():
         return
     rgb, cov = bake_sphere(TableBRDF(new, prof), env, diameter, FINAL_SAMPLES, 0)
