@@ -77,6 +77,9 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             edits_folder(), f"{safe_name(mat.name)}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.binary"
         )
         self._mat_name = mat.name
+        from ..addon.blender import live
+
+        live.pause(mat)  # the same synthesis is made here; finish shows the written table
         # Edits still shown by a material are never evicted from the bounded cache.
         in_use = [m.brdf_moments.edited_path for m in bpy.data.materials if m.brdf_moments.edited_path]
 
@@ -154,6 +157,9 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         state.edit_warnings = "\n".join(res.warnings)
         state.edit_fidelity = res.fidelity.to_json() if res.fidelity is not None else ""
         plot_image(mat, prof, fit, res.profiles, later=True)
+        from ..addon.blender import live
+
+        live.show_applied(mat, out)
         note = ""
         if principled is not None:
             state.principled_data = json.dumps(principled.as_dict())

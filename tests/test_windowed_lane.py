@@ -267,6 +267,7 @@ def test_an_apply_in_the_reopened_file(lane):
     # The live preview ran for these sliders before Apply, so Apply wrote its kept synthesis:
     # the synthesis stage (progress 3/10 to 6/10) is a lookup, not a solve (3-5 s here).
     assert data["live_before_quiet_apply"]
+    assert data["preview_changed_by_apply"]  # the written table, baked into the preview
     at = {(d, t): m for m, d, t in quiet["job"]["marks"]}
     synthesis = at[(6, 10)] - at[(3, 10)]
     assert synthesis < 1.0, quiet["job"]["marks"]

@@ -161,6 +161,17 @@ def snapshot():
     }
 
 
+def preview_digest():
+    img = bpy.data.images.get(f"BRDF Moments preview: {MAT}")
+    if img is None:
+        return None
+    import numpy as np
+
+    buf = np.empty(img.size[0] * img.size[1] * 4, np.float32)
+    img.pixels.foreach_get(buf)
+    return hashlib.sha1(buf.tobytes()).hexdigest()
+
+
 def record(name, **extra):
     step = {"name": name, "state": snapshot(), "t": time.monotonic(), **extra}
     result["steps"].append(step)
@@ -358,8 +369,15 @@ def session():
         if live_seen and not live:
             break
     result["live_before_quiet_apply"] = live_seen
+    before = preview_digest()
     status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
     yield from wait_jobs()
+    for _ in range(300):  # the written table baked into the preview (labelled 'applied')
+        yield 0.1
+        if not [t for t in threading.enumerate() if t.name == "brdf_moments: live preview" and t.is_alive()]:
+            break
+    yield 0.3
+    result["preview_changed_by_apply"] = preview_digest() != before
     solve = sys.modules.get("brdf_moments.addon.core.edit.solve")
     record("apply_quiet", status=status, message=message, job=last_job())
 
