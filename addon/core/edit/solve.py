@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..blas import one_thread
 from ..fits import LAMBERT_VARIANCE, fit_material
 from ..integrate import get_operator
 from ..merl import RES_TD, MerlTable
@@ -338,7 +339,8 @@ def edit(
     if kept is not None:
         out = kept.copy()  # the caller owns its table
     else:
-        out = synthesize(table, prof, fit, vt, draft=draft)[0]
+        with one_thread():  # its dense algebra is tiny: OpenBLAS's thread hand-offs cost more
+            out = synthesize(table, prof, fit, vt, draft=draft)[0]
         if key is not None:
             _KEPT.clear()
             _KEPT[key] = out.copy()
