@@ -77,9 +77,6 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             edits_folder(), f"{safe_name(mat.name)}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.binary"
         )
         self._mat_name = mat.name
-        from ..addon.blender import live
-
-        live.pause(mat)  # the same synthesis is made here; finish shows the written table
         # Edits still shown by a material are never evicted from the bounded cache.
         in_use = [m.brdf_moments.edited_path for m in bpy.data.materials if m.brdf_moments.edited_path]
 
@@ -138,6 +135,9 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             res.table = None  # written to `out`; not sent back from the worker process (100 MB)
             return out, res, prof, fit, principled, texture
 
+        from ..addon.blender import live
+
+        live.pause(mat)  # once nothing can refuse the Apply: its child makes the same synthesis
         return work
 
     def finish(self, context, result):

@@ -6,6 +6,10 @@ measured here, against 20 us on one thread. ``one_thread()`` sets OpenBLAS to on
 block and restores it after; nested or concurrent blocks (the live preview's thread and an edit)
 share one count, so the first to enter saves the setting and the last to leave restores it. Where
 no OpenBLAS is loaded (another BLAS, another platform) it does nothing.
+
+Setting the count while another thread is inside a BLAS call is what threadpoolctl does too:
+OpenBLAS only grows its pool (under its own lock) and reads the count when a call starts, so a
+call in flight finishes with the count it began with.
 """
 
 from __future__ import annotations
