@@ -7,9 +7,9 @@ block and restores it after; nested or concurrent blocks (the live preview's thr
 share one count, so the first to enter saves the setting and the last to leave restores it. Where
 no OpenBLAS is loaded (another BLAS, another platform) it does nothing.
 
-Setting the count while another thread is inside a BLAS call is what threadpoolctl does too:
-OpenBLAS only grows its pool (under its own lock) and reads the count when a call starts, so a
-call in flight finishes with the count it began with.
+The count is changed at run time through OpenBLAS's public setter, the way threadpoolctl does
+it; the setting is process-wide, so BLAS work in other threads during the block runs on one
+thread too (in Blender that is the add-on's own threads: a plot being drawn, the live preview).
 """
 
 from __future__ import annotations
