@@ -2,7 +2,8 @@
 packaged legacy add-on installed as a user would, driven by timers and real X key and mouse
 events (tests/windowed/drive.py): Load (a missing file, a good one, one cancelled with
 Esc) -> Analyse -> slider moves -> Apply (a key and a right-click while it runs) -> Esc on a
-second Apply -> undo, redo (ctrl+z, ctrl+shift+z) -> Build Preview -> save -> reopen.
+second Apply -> undo, redo (ctrl+z, ctrl+shift+z) -> Build Preview -> save -> reopen -> two
+hands-off Applies (pressed with a slider move; after the live preview settled).
 
 Screenshots, the driver's JSON and Blender's log are kept in out/test-artifacts/windowed/."""
 
