@@ -89,7 +89,7 @@ def test_scale_to_albedo_brings_the_peak_to_one(glossy):
     assert res.energy_gain and any("reflects more" in w for w in res.warnings)
     fixed = scale_to_albedo(res)
     assert fixed.max_albedo.max() == pytest.approx(1.0)
-    assert directional_albedo(fixed.table).max() == pytest.approx(1.0, rel=1e-6)
+    assert directional_albedo(fixed.table, prof.theta_o).max() == pytest.approx(1.0, rel=1e-6)
 
 
 def test_truncated_gaussian_solver_matches_its_targets():

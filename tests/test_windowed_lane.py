@@ -310,7 +310,8 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
     for st in data.get("stalls", []):
         where = " <- ".join(reversed(st["stack"])) or "Blender's C code (no Python on the main thread)"
         who = "the driver's own wait" if st["driver"] else where
-        print(f"  stall {st['length']:.2f} s during {st['job'] or 'no job'}: {who}")
+        ours = f"; the add-on's Python {st['ours_seconds']:.3f} s of it" if st.get("ours_seconds") else ""
+        print(f"  stall {st['length']:.2f} s during {st['job'] or 'no job'}: {who}{ours}")
     print(f"  the add-on's longest main-thread run: {data['ours_longest'][0]:.3f} s at {data['ours_longest'][1]}")
     for j in jobs:
         print(
@@ -330,15 +331,17 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
         # No freeze beyond what the same machine shows idle (work on the main thread would
         # give one gap as long as the job: 40-60 s for an Apply here) ...
         assert (j["largest_gap"] or 0.0) < max(3.0, 2.5 * idle_gap), (j, idle)
-    # Every main-loop stall during a job that the driver did not cause was Blender's own C code
-    # (software-GL drawing: the same stalls come with no job), never the add-on's Python.
-    for st in data.get("stalls", []):
-        if st["job"] and not st["driver"]:
-            assert not st.get("ours"), st
-        # ... and through a long job (an Apply) the main loop keeps turning: 20 ticks a second
-        # when quiet, 5-6 at a load of 13 on 2 cores; frozen, it would tick once.
+        # ... and through a long job the main loop keeps turning: 20 ticks a second when
+        # quiet, 5-6 at a load of 13 on 2 cores; frozen, it would tick once.
         if j["seconds"] > 30:
             assert j["ticks"] >= j["seconds"], j
+    # Every main-loop stall during a job that the driver did not cause was Blender's own C code
+    # (software-GL drawing: the same stalls come with no job): the add-on's Python held the
+    # main thread for under 0.2 s of it. (A stall sampled once with our frames on the stack is
+    # not ours by that alone: a cold-disk import of 30 ms inside a 2 s draw was, in CI.)
+    for st in data.get("stalls", []):
+        if st["job"] and not st["driver"]:
+            assert st["ours_seconds"] < 0.2, st
 
 
 def test_screenshots_show_the_window(lane):

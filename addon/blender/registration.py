@@ -1,6 +1,8 @@
 """Every bpy class of the extension, registered in one place (order matters: property
 groups before the types that point to them, operators before the panels that draw them)."""
 
+import importlib
+
 import bpy
 
 from . import panel, state
@@ -54,7 +56,29 @@ def _file_loaded(*_args):
     material.relink_textures()
 
 
+# What the main thread imports lazily while jobs run (a job's finish, the panel, the live
+# preview): imported once here instead, so that no job waits on a cold disk or a compile.
+PRELOAD = (
+    "..core.edit",
+    "..core.edit.fidelity",
+    "..core.fits",
+    "..core.merl",
+    "..core.nbrdf",
+    "..core.principled",
+    "..core.render",
+    ".images",
+    ".live",
+    ".material",
+    ".plot_font",
+    ".plot_image",
+    ".preview",
+    ".preview.osl",
+)
+
+
 def register():
+    for name in PRELOAD:
+        importlib.import_module(name, __package__)
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     state.attach()

@@ -489,7 +489,7 @@ def probe():
             {"since": last, "at": now, "stack": [f"{os.path.basename(f.filename)}:{f.lineno} {f.name}" for f in stack]}
         )
         if ours_now:
-            stalls[-1]["ours"] = True
+            stalls[-1]["ours_where"] = where  # the add-on's frames at that instant
 
 
 probe_ticks = []
@@ -518,6 +518,10 @@ def finish():
     for st in stalls:
         after = [t for t in ticks if t > st["since"]]
         st["length"] = (after[0] if after else time.monotonic()) - st["since"]
+        end = st["since"] + st["length"]
+        # How long the add-on's own Python held the main thread inside the stall: one sample
+        # showing its frames says only that it ran at that instant (a 10 ms import, say).
+        st["ours_seconds"] = sum(max(0.0, min(b, end) - max(a, st["since"])) for a, b, _ in ours_runs)
         st["driver"] = any(a < st["since"] + st["length"] and b > st["since"] for a, b in driver_busy)
         st["job"] = next(
             (

@@ -193,11 +193,13 @@ def _view_reach(prof, vt):
 
 
 def directional_albedo(table: MerlTable, views=None) -> np.ndarray:
-    """(views, 3): integral of rho cos(theta_i) over the hemisphere for each view."""
+    """(views, 3): integral of rho cos(theta_i) over the hemisphere for each view (default:
+    the profiles' default views). An edit measures it at its analysed views, with the same
+    operator as its profiles: a second set of views cost a second operator (28 s cold)."""
     from ..integrate import default_views
 
-    views = default_views(30, 89.0) if views is None else np.asarray(views, float)
-    op = get_operator(views, memo=False)
+    views = default_views() if views is None else np.asarray(views, float)
+    op = get_operator(views)
     full = np.where(table.valid, table.rho, 0.0).T
     out = np.empty((len(views), 3))
     for k in range(len(views)):
@@ -247,7 +249,7 @@ def _target_note(achieved_mu, achieved_s2, mu_t, s2_t):
 
 def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **extra):
     # A draft is only looked at (the full synthesis follows): no albedo pass (0.1-0.3 s).
-    albedo = np.full(3, np.nan) if draft else directional_albedo(out).max(axis=0)
+    albedo = np.full(3, np.nan) if draft else directional_albedo(out, prof.theta_o).max(axis=0)
     if np.any(albedo > 1.0):
         warnings.append(
             f"the edited material reflects more than it receives (largest directional albedo "

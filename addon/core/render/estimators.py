@@ -23,7 +23,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import qmc
 
 from .lights import light_clusters
 from .scene import local_frames, sphere_points, texel_positions, touched_texels
@@ -147,6 +146,8 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
 
 
 def _sobol(dim, n, rng):
+    from scipy.stats import qmc  # 0.9 s to import: only when a reference render asks for it
+
     return qmc.Sobol(dim, scramble=True, seed=rng).random(1 << max(0, math.ceil(math.log2(n))))[:n]
 
 
