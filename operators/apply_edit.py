@@ -140,6 +140,15 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         live.pause(mat)  # once nothing can refuse the Apply: its child makes the same synthesis
         return work
 
+    def ended(self, context, outcome):
+        # A cancelled or failed Apply paused the live preview for nothing: it shows the
+        # sliders' edit again (the kept synthesis, when the preview had made it, is reused).
+        mat = bpy.data.materials.get(self._mat_name)
+        if outcome != "finished" and mat is not None:
+            from ..addon.blender import live
+
+            live.slider_moved(mat)
+
     def finish(self, context, result):
         import math
 

@@ -130,6 +130,7 @@ def test_the_session_ran_to_the_end_without_a_traceback(lane):
         "reopen",
         "apply_at_once",
         "apply_quiet",
+        "apply_cancelled_live",
     ]
 
 
@@ -208,6 +209,11 @@ def test_apply_reaches_the_sliders_and_a_cancelled_apply_changes_nothing(lane):
     assert second["running_before_esc"] and second["job"]["outcome"] == "cancelled"
     assert edit_fields(second["state"]) == edit_fields(apply)
     assert analysis_fields(second["state"]) == analysis_fields(apply)
+    # An Apply cancelled once the preview exists: the live preview it paused shows the sliders
+    # again (it stayed frozen on the last image before).
+    third = st["apply_cancelled_live"]
+    assert third["job"]["outcome"] == "cancelled" and third["preview"], third
+    assert third["live_resumed"], third
 
 
 def test_undo_and_redo_with_the_keys(lane):
@@ -287,7 +293,7 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
     runs in a child process, so the GIL stays free: before that, the thread saw gaps of
     0.7-1.3 s here. The main loop's own gaps are Blender drawing in software GL; on a loaded
     machine they reach seconds with no job at all, so they are bounded by the idle control
-    measured in the same session rather than by a fixed figure. The 0.2 s target is checked on
+    and Blender's own stalls outside jobs in the same session rather than by a fixed figure. The 0.2 s target is checked on
     what the add-on controls: the GIL, and the add-on's own runs of Python on the main thread
     (sampled every 10 ms by the same thread; a stall's stack says whose it was)."""
     data, _, _, _ = lane
@@ -323,6 +329,9 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
             + "; ".join(f"{k}: {' <- '.join(reversed(v))}" for k, v in g["threads"].items())
         )
     idle_gap = idle["largest_gap"] or idle["end"] - idle["start"]  # no tick at all: the whole control
+    # Blender's own longest stall with no job and no driver step, anywhere in the session (the
+    # 3 s control can miss them: 1.2 s in it, 4.7 s later in one run here).
+    alone = max((st["length"] for st in data.get("stalls", []) if not st["job"] and not st["driver"]), default=0.0)
     for j in jobs:
         assert j["largest_gil_gap"] < 0.3, j
         # The add-on's own Python on the main thread (drawing the panel, a job's modal and
@@ -330,7 +339,7 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
         assert j["largest_ours"] < 0.2, j
         # No freeze beyond what the same machine shows idle (work on the main thread would
         # give one gap as long as the job: 40-60 s for an Apply here) ...
-        assert (j["largest_gap"] or 0.0) < max(3.0, 2.5 * idle_gap), (j, idle)
+        assert (j["largest_gap"] or 0.0) < max(3.0, 2.5 * idle_gap, alone), (j, idle, alone)
         # ... and through a long job the main loop keeps turning: 20 ticks a second when
         # quiet, 5-6 at a load of 13 on 2 cores; frozen, it would tick once.
         if j["seconds"] > 30:

@@ -179,6 +179,10 @@ class BackgroundJob:
     def finish(self, context, result):  # pragma: no cover - interface
         raise NotImplementedError
 
+    def ended(self, context, outcome):
+        """Called once a windowed job ends ('finished', 'cancelled' or 'failed'): an operator
+        undoes here what its start did for the job's sake."""
+
     # --- runner -----------------------------------------------------------------------------
     def _prepare(self, context):
         try:
@@ -287,6 +291,7 @@ class BackgroundJob:
 
     def _end(self, context, outcome):
         _ended(self, outcome)
+        self.ended(context, outcome)
         wm = context.window_manager
         wm.event_timer_remove(self._timer)
         wm.progress_end()

@@ -381,6 +381,22 @@ def session():
     solve = sys.modules.get("brdf_moments.addon.core.edit.solve")
     record("apply_quiet", status=status, message=message, job=last_job())
 
+    # An Apply cancelled with Esc pauses the live preview for nothing: it must take up the
+    # sliders again (its image changes to the edit the Apply would have made).
+    s.sigma2 = s.fit_sigma2 * 1.15
+    status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
+    yield 0.5
+    key_over("VIEW_3D", "Escape")
+    yield from wait_jobs()
+    before = preview_digest()
+    resumed = False
+    for _ in range(300):
+        yield 0.1
+        if preview_digest() != before:
+            resumed = True
+            break
+    record("apply_cancelled_live", status=status, job=last_job(), preview=before is not None, live_resumed=resumed)
+
 
 # --- the timers -------------------------------------------------------------------------------
 
