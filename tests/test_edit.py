@@ -89,7 +89,11 @@ def test_scale_to_albedo_brings_the_peak_to_one(glossy):
     assert res.energy_gain and any("reflects more" in w for w in res.warnings)
     fixed = scale_to_albedo(res)
     assert fixed.max_albedo.max() == pytest.approx(1.0)
-    assert directional_albedo(fixed.table, prof.theta_o).max() == pytest.approx(1.0, rel=1e-6)
+    from addon.core.edit.solve import ALBEDO_STRIDE
+
+    assert directional_albedo(fixed.table, prof.theta_o, ALBEDO_STRIDE).max() == pytest.approx(1.0, rel=1e-6)
+    # The check's views are a subset: every view's albedo is at least close to it.
+    assert directional_albedo(fixed.table, prof.theta_o).max() == pytest.approx(1.0, rel=0.02)
 
 
 def test_truncated_gaussian_solver_matches_its_targets():
