@@ -71,7 +71,7 @@ def ring_major_index(cells):
     return (id_ * RES_TH + ih) * RES_PD + pd
 
 
-def _cell_geometry():
+def _cell_geometry(dtype=np.float64):
     """Per cell, ring-major: the tilt's log factor L (material independent, once per process)."""
     if "L" not in _GEOMETRY:
         th, td, pd = cell_centres()
@@ -79,7 +79,10 @@ def _cell_geometry():
         ci, co = np.maximum(wi[:, 2], 1e-3), np.maximum(wo[:, 2], 1e-3)
         L = np.log(ci * co) - 2.0 * np.log(np.cos(td))
         _GEOMETRY["L"] = to_ring_major(L)[..., 0]
-    return _GEOMETRY["L"]
+    key = ("L", np.dtype(dtype).str)
+    if np.dtype(dtype) != np.float64 and key not in _GEOMETRY:
+        _GEOMETRY[key] = _GEOMETRY["L"].astype(dtype)
+    return _GEOMETRY.get(key, _GEOMETRY["L"])
 
 
 @dataclass
@@ -100,8 +103,9 @@ class Transform:
     theta_h, 180, C): see ``to_ring_major``."""
 
     def __init__(self, spec, ring_var):
-        self.spec = spec
-        self.L = _cell_geometry()
+        self.spec = spec  # float32 for the solve's average channel, float64 for the table
+        self.dtype = spec.dtype
+        self.L = _cell_geometry(self.dtype)
         self.ring_var = np.maximum(np.asarray(ring_var, float), 1e-8)  # (90,) the measured variance per ring
         self.ih = np.arange(RES_TH, dtype=float) + 0.5
 
@@ -142,22 +146,25 @@ class Transform:
         (written in place: stacking three 12 MB arrays cost 0.2 s of a synthesis). Computed in two
         halves of the rings on the sums' thread pool (numpy's gathers and arithmetic release the
         GIL)."""
+        dt = self.dtype
         j, w, dw = self._weights(c.log_s)
-        qr = c.q / self.ring_var
-        gain = np.exp(c.log_g - 2.0 * c.log_s[:, None])[:, None, None, :]  # (id, 1, 1, C)
+        w, dw = w.astype(dt), dw.astype(dt)
+        qr = (c.q / self.ring_var).astype(dt)
+        inv_var = (1.0 / self.ring_var).astype(dt)
+        gain = np.exp(c.log_g - 2.0 * c.log_s[:, None]).astype(dt)[:, None, None, :]  # (id, 1, 1, C)
         shape = self.spec.shape
         C = shape[-1]
-        out = np.empty(shape[:-1] + (3 * C if with_derivatives else C,))
+        out = np.empty(shape[:-1] + (3 * C if with_derivatives else C,), dtype=dt)
 
         def ring_block(rows):
             a, b = rows
             if with_derivatives:
-                o = np.zeros((b - a,) + shape[1:])
+                o = np.zeros((b - a,) + shape[1:], dtype=dt)
             else:
                 o = out[a:b]
                 o.fill(0.0)
-            tmp = np.empty(o.shape)
-            dl = np.zeros(o.shape) if with_derivatives else None
+            tmp = np.empty(o.shape, dtype=dt)
+            dl = np.zeros(o.shape, dtype=dt) if with_derivatives else None
             ring = np.arange(a, b)[:, None]
             for k in range(4):
                 v = self.spec[ring, j[k, a:b]]  # (b - a, 90, 180, C)
@@ -176,9 +183,9 @@ class Transform:
                 np.copyto(dl, 0.0, where=neg)
                 dl *= tilt
                 dl *= gain[a:b]
-                dl -= 2.0 * o
+                dl -= dt.type(2.0) * o
                 out[a:b, ..., C : 2 * C] = dl
-                np.multiply(o, (self.L[a:b] / self.ring_var[a:b, None, None])[..., None], out=out[a:b, ..., 2 * C :])
+                np.multiply(o, (self.L[a:b] * inv_var[a:b, None, None])[..., None], out=out[a:b, ..., 2 * C :])
 
         half = RES_TD // 2
         _parallel_map(ring_block, [(0, half), (half, RES_TD)])
@@ -228,30 +235,35 @@ class RingSums:
 
     def sums(self, values):
         """(views, 90 rings, 5 monomials[, k]) for ring-major per-cell values (N_CELLS,) or
-        (N_CELLS, k)."""
-        v = np.asarray(values, dtype=np.float64)
+        (N_CELLS, k). float32 values are summed in float32 (the solve's steering sums: half the
+        memory traffic; 1e-6 relative), anything else in float64; the result is float64."""
+        single = np.asarray(values).dtype == np.float32
+        v = np.asarray(values, dtype=np.float32 if single else np.float64)
         # Each product in two halves of its rows: ten even tasks keep both threads busy (five
         # whole products left one thread idle for a fifth of the time).
-        parts = _parallel_map(lambda m: m @ v, self._halves())
+        parts = _parallel_map(lambda m: m @ v, self._halves(np.float32 if single else np.float64))
         out = np.stack([np.concatenate(parts[2 * j : 2 * j + 2]) for j in range(len(self.mats))], axis=1)
-        return self._per_view(out)
+        return self._per_view(out.astype(np.float64, copy=False))
 
-    def _halves(self):
-        """Each matrix's two row halves, sharing its buffers (made once)."""
+    def _halves(self, dtype=np.float64):
+        """Each matrix's two row halves, sharing its index buffers (made once per dtype)."""
         from scipy.sparse import csr_matrix
 
-        if getattr(self, "_parts", None) is None:
+        cache = self.__dict__.setdefault("_parts", {})
+        key = np.dtype(dtype).str
+        if key not in cache:
             n = self.mats[0].shape[0]
             parts = []
             for m in self.mats:
+                data = m.data if np.dtype(dtype) == m.data.dtype else m.data.astype(dtype)
                 for a, b in ((0, n // 2), (n // 2, n)):
                     lo, hi = m.indptr[a], m.indptr[b]
                     ptr = m.indptr[a : b + 1] - lo
                     parts.append(
-                        csr_matrix((m.data[lo:hi], m.indices[lo:hi], ptr), shape=(b - a, m.shape[1]), copy=False)
+                        csr_matrix((data[lo:hi], m.indices[lo:hi], ptr), shape=(b - a, m.shape[1]), copy=False)
                     )
-            self._parts = parts
-        return self._parts
+            cache[key] = parts
+        return cache[key]
 
     def energy(self, values):
         """(views, 90 rings[, k]): the zeroth monomial's sums alone."""

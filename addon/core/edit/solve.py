@@ -53,6 +53,7 @@ _RINGS: dict = {}
 # every view (every other one already loosened ggx_mirror's worst view variance from 22 % to 42 %).
 DRAFT_STEPS = 3
 DRAFT_VIEW_STRIDE = 3
+SOLVE_DTYPE = np.float32  # the Gauss-Newton's steering sums (the table is float64)
 
 
 _LOCKS: dict = {}
@@ -86,8 +87,10 @@ def warm(theta_o):
     """Build what every edit of these views shares (the profile operator, its ring sums, the
     tilt's geometry), once per process. Blender calls it in a thread after an analysis, so
     that the job processes it forks for Apply inherit them instead of rebuilding (~1 s)."""
-    _rings(np.asarray(theta_o, float))
-    R._cell_geometry()
+    theta_o = np.asarray(theta_o, float)
+    for stride in (1, DRAFT_VIEW_STRIDE):
+        _rings(theta_o, stride)._halves(SOLVE_DTYPE)  # the steering sums' float32 copies too
+    R._cell_geometry(SOLVE_DTYPE)
 
 
 def _avg_goals(prof: Profiles, fit: dict, vt: ViewTargets):
@@ -132,7 +135,9 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, val
     # (Out-of-reach views are not down-weighted by the reach test: a yes/no weight would make the
     # map from sliders to tables jump as a view crosses the boundary. The robust loss tames them.)
     goal_e = np.maximum(goal_e, 1e-12 * max(float(goal_e.max(initial=0.0)), 1e-300))
-    avg = R.Transform(R.spec_cube(values[:, 3:4]), ring_var)
+    # The solve steers on the average channel in float32 (half the memory traffic of its 8 steps);
+    # the table itself is made in float64 from the solved controls, and re-measured in float64.
+    avg = R.Transform(R.spec_cube(values[:, 3:4].astype(SOLVE_DTYPE)), ring_var)
     # Start from the per-view answer read off at theta_d = theta_o (where each view's lobe is):
     # the width by the variance ratio, the gain by the energy ratio (1/s^2 already keeps it).
     measured_e = np.nan_to_num(np.asarray(p["alpha"], float))
