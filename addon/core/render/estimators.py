@@ -146,7 +146,7 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
 
 
 def _sobol(dim, n, rng):
-    from scipy.stats import qmc  # 0.9 s to import: only when a reference render asks for it
+    from scipy.stats import qmc  # 0.9 s to import: on the first bake (a worker thread), not at import
 
     return qmc.Sobol(dim, scramble=True, seed=rng).random(1 << max(0, math.ceil(math.log2(n))))[:n]
 
