@@ -147,23 +147,29 @@ def diffuse_floor(table: MerlTable, cache_dir=None, method: str = "min") -> np.n
     return kd
 
 
-def specular_values(table: MerlTable, kd, split=True, dtype=np.float64, with_average=True) -> np.ndarray:
-    """Per-cell specular part, (N_CELLS, 4): r, g, b and their mean; missing cells are 0.
-
-    The average is taken only where all three channels were measured, so it never mixes a
-    missing cell in. ``with_average=False`` returns only the three channels.
-    """
+def specular_part(table: MerlTable, kd, split=True, dtype=np.float64, with_average=True):
+    """The per-cell specular part in the table's own (3, N_CELLS) layout, and its mean (N_CELLS,)
+    (None without ``with_average``): rho - kd clipped at 0, missing cells 0. The mean is taken
+    only where all three channels were measured, so it never mixes a missing cell in."""
     kd = np.asarray(kd, dtype=float) if split else np.zeros(3)
-    # Worked in the table's own (3, cells) layout, which is contiguous, and transposed once.
-    spec = np.subtract(table.rho, kd[:, None].astype(dtype), dtype=dtype)
+    spec = np.subtract(table.rho, kd[:, None].astype(dtype), dtype=dtype)  # contiguous, as stored
     np.maximum(spec, 0.0, out=spec)
     spec *= table.valid
+    if not with_average:
+        return spec, None
+    avg = spec.sum(axis=0)
+    avg /= 3
+    avg *= table.valid.all(axis=0)
+    return spec, avg
+
+
+def specular_values(table: MerlTable, kd, split=True, dtype=np.float64, with_average=True) -> np.ndarray:
+    """Per-cell specular part, (N_CELLS, 4): r, g, b and their mean (``specular_part``); missing
+    cells are 0. ``with_average=False`` returns only the three channels."""
+    spec, avg = specular_part(table, kd, split, dtype, with_average)
     out = np.empty((table.rho.shape[1], 4 if with_average else 3), dtype=dtype)
     out[:, :3] = spec.T
     if with_average:
-        avg = spec.sum(axis=0)
-        avg /= 3
-        avg *= table.valid.all(axis=0)
         out[:, 3] = avg
     return out
 

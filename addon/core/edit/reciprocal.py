@@ -24,6 +24,7 @@ is continuous (no bisection, no picking among rounds).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,7 @@ import numpy as np
 from ..geometry import directions_from_half_diff
 from ..integrate import SliceOperator
 from ..merl import RES_PD, RES_TD, RES_TH, MerlTable, cell_centres
+from ..profiles import specular_part
 
 # Operator columns used by the solve: 1, x, phi, x^2, phi^2 (exponents(4) order: 0, 1, 2, 3, 5).
 _COLS = (0, 1, 2, 3, 5)
@@ -447,9 +449,13 @@ def channel_gains(transform: Transform, rings: RingSums, c: Controls, goal_alpha
     return out, vals
 
 
-def spec_cube(values):
-    """(N_CELLS, C) per-cell specular values (MERL order) as the ring-major cube the transform reads."""
-    return to_ring_major(values)
+def spec_cubes(table: MerlTable, kd, split=True, avg_dtype=np.float32):
+    """The specular part (``profiles.specular_part``) as the ring-major cubes the transforms read:
+    r, g, b (90, 90, 180, 3) float64 for the table, and their mean (90, 90, 180, 1) in
+    ``avg_dtype`` for the solve. Transposed once from the table's layout."""
+    spec, avg = specular_part(table, kd, split)
+    rgb = np.ascontiguousarray(spec.reshape(3, RES_TH, RES_TD, RES_PD).transpose(2, 1, 3, 0))
+    return rgb, to_ring_major(avg.astype(avg_dtype)[:, None])
 
 
 def tabulate(table: MerlTable, transform: Transform, c: Controls, kd, unit_gain_values=None) -> MerlTable:
@@ -457,10 +463,20 @@ def tabulate(table: MerlTable, transform: Transform, c: Controls, kd, unit_gain_
     ``unit_gain_values``: the transform at these controls with zero log gains, if already made."""
     if unit_gain_values is None:
         vals = transform.values(c)  # ring-major (90 td, 90 th, 180, 3)
+        gain = None
     else:
-        vals = unit_gain_values * np.exp(c.log_g)[:, None, None, :]
-    rho = np.ascontiguousarray(np.transpose(vals, (3, 1, 0, 2))).reshape(vals.shape[-1], -1)  # MERL order
-    if not np.isfinite(rho).all() or rho.max(initial=0.0) > 1e30:
+        vals, gain = unit_gain_values, np.exp(c.log_g)  # (90 td, C)
+    C = vals.shape[-1]
+    # Into MERL order (C, theta_h, theta_d, phi_d) in one pass, the gains applied on the way.
+    rho = np.empty((C, RES_TH, RES_TD, RES_PD))
+    src = np.transpose(vals, (3, 1, 0, 2))
+    if gain is None:
+        np.copyto(rho, src)
+    else:
+        np.multiply(src, gain.T[:, None, :, None], out=rho)
+    rho = rho.reshape(C, -1)
+    top = float(rho.max(initial=0.0))  # NaN propagates through max; the values are >= 0
+    if not math.isfinite(top) or top > 1e30:
         raise ValueError("synthesis produced non-finite or absurd values; the slider targets are out of reach")
     rho += np.asarray(kd, float)[:, None]
     rho *= table.valid

@@ -15,7 +15,7 @@ from ..blas import one_thread
 from ..fits import LAMBERT_VARIANCE, fit_material
 from ..integrate import get_operator
 from ..merl import RES_TD, MerlTable
-from ..profiles import Profiles, compute_profiles, specular_values
+from ..profiles import Profiles, compute_profiles
 from . import reciprocal as R
 from .fidelity import Fidelity, measure
 from .reach import ReachableRegion, reachable_region
@@ -116,12 +116,11 @@ def _weights(theta, alpha):
     return np.repeat(f[:, None], 3, axis=1)
 
 
-def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, values=None, reachable=None, draft=False):
+def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, draft=False):
     """The reciprocal table for per-view targets ``vt``; returns (table, controls, report).
     ``draft``: a quick, rougher solve (DRAFT_STEPS on every DRAFT_VIEW_STRIDE-th view)."""
     kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
-    if values is None:
-        values = specular_values(table, kd, prof.split)
+    spec_rgb, spec_avg = R.spec_cubes(table, kd, prof.split, SOLVE_DTYPE)
     theta = np.asarray(prof.theta_o, float)
     rings = _rings(theta)
     ring_centres = (np.arange(RES_TD) + 0.5) / RES_TD * (0.5 * math.pi)
@@ -137,7 +136,7 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, val
     goal_e = np.maximum(goal_e, 1e-12 * max(float(goal_e.max(initial=0.0)), 1e-300))
     # The solve steers on the average channel in float32 (half the memory traffic of its 8 steps);
     # the table itself is made in float64 from the solved controls, and re-measured in float64.
-    avg = R.Transform(R.spec_cube(values[:, 3:4].astype(SOLVE_DTYPE)), ring_var)
+    avg = R.Transform(spec_avg, ring_var)
     # Start from the per-view answer read off at theta_d = theta_o (where each view's lobe is):
     # the width by the variance ratio, the gain by the energy ratio (1/s^2 already keeps it).
     measured_e = np.nan_to_num(np.asarray(p["alpha"], float))
@@ -161,8 +160,8 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, val
         start_controls=start,
         steps=DRAFT_STEPS if draft else None,
     )
-    del avg
-    rgb = R.Transform(R.spec_cube(values[:, :3]), ring_var)
+    del avg, spec_avg
+    rgb = R.Transform(spec_rgb, ring_var)
     controls.log_g, unit = R.channel_gains(rgb, rings, controls, vt.alpha, weight[:, 0])
     return R.tabulate(table, rgb, controls, kd, unit), controls, report
 
