@@ -171,3 +171,61 @@ def test_a_kept_synthesis_is_reused_only_for_the_same_inputs(glossy):
     other.rho[0, np.flatnonzero(other.valid)[0]] *= 1.5
     assert not edit(other, targets, prof, fit, keep=True).reused
     solve._KEPT.clear()
+
+
+def test_a_superseded_synthesis_stops_between_its_steps_and_keeps_nothing(glossy):
+    """``stop()`` (the live preview's "a newer move came") is asked before every step: once it
+    says so the edit raises ``Superseded`` at once, keeps nothing, and a stop that never fires
+    changes nothing in the table."""
+    from addon.core.edit import Superseded, solve
+    from addon.core.edit.reciprocal import STEPS
+
+    table, prof, fit = glossy
+    targets = EditTargets(sigma2=fit["sigma2"] * 0.8)
+    asked = []
+
+    def never():
+        asked.append(1)
+        return False
+
+    plain = edit(table, targets, prof, fit, remeasure=False)
+    watched = edit(table, targets, prof, fit, remeasure=False, stop=never)
+    np.testing.assert_array_equal(watched.table.rho, plain.table.rho)
+    assert len(asked) >= STEPS  # asked before each step, not only at the end
+
+    solve._KEPT.clear()
+    calls = []
+
+    def after_two():
+        calls.append(1)
+        return len(calls) > 2
+
+    with pytest.raises(Superseded):
+        edit(table, targets, prof, fit, remeasure=False, keep=True, stop=after_two)
+    assert len(calls) == 3  # gave up at the third question, not after the remaining steps
+    assert not solve._KEPT
+
+
+def test_the_live_work_drops_a_superseded_refinement(glossy):
+    """``render.live.work``: a move that comes once the full synthesis has started stops it at
+    its next step (nothing is kept, no refined image of the old sliders is posted), rather than
+    after the whole synthesis."""
+    from addon.core.edit import solve
+    from addon.core.render.envmap import Environment
+    from addon.core.render.live import work
+
+    table, prof, fit = glossy
+    targets = EditTargets(sigma2=fit["sigma2"] * 0.8)
+    posted, asked_after_live = [], []
+
+    def stale():
+        if posted:
+            asked_after_live.append(1)
+        return len(asked_after_live) > 1  # the move comes just after the full synthesis began
+
+    solve._KEPT.clear()
+    env = Environment(np.full((8, 16, 3), 0.5))
+    work(table, targets, prof, fit, env, 16, stale=stale, post=lambda s, rgb, cov: posted.append(s))
+    assert posted == ["live"]
+    assert not solve._KEPT  # the full synthesis (keep=True) did not run to its end
+    assert len(asked_after_live) == 2

@@ -12,6 +12,7 @@ The truncated-Gaussian solver shared with the preview and OSL is ``core.truncate
 """
 
 from .reach import ReachableRegion, reachable_region
+from .reciprocal import Superseded
 from .solve import EditResult, directional_albedo, edit, scale_to_albedo, synthesize
 from .targets import MIN_SIGMA2, MODES, EditTargets, ViewTargets, resolve_targets, target_energy, view_targets
 
@@ -21,6 +22,7 @@ __all__ = [
     "EditResult",
     "EditTargets",
     "ReachableRegion",
+    "Superseded",
     "ViewTargets",
     "directional_albedo",
     "edit",

@@ -337,6 +337,11 @@ def _residual_jacobian(Sr, dSr, goal_e, goal_mx, goal_v, weight):
     return r, J
 
 
+class Superseded(Exception):
+    """A synthesis given up between its steps because its ``stop()`` said so (a newer slider
+    move, or an Apply of the same sliders, made it moot)."""
+
+
 def _second_difference(n):
     d = np.zeros((n - 2, n))
     for i in range(n - 2):
@@ -373,12 +378,14 @@ def solve_controls(
     steps=None,
     start_controls: Controls | None = None,
     n_knots=None,
+    stop=None,
 ):
     """Damped Gauss-Newton on (log s, q~, log G_avg), each a hat spline over theta_d, on the
     average channel, added to ``start_controls`` (per ring).
 
     ``goal_*`` per view (the average channel's targets: energy, mean about the mirror x = theta +
-    theta_o, average variance); ``weight`` (V, 3) per residual kind. Returns (Controls, report)."""
+    theta_o, average variance); ``weight`` (V, 3) per residual kind. ``stop()``, asked before
+    each step, True: ``Superseded`` is raised. Returns (Controls, report)."""
     steps = STEPS if steps is None else steps
     B = knot_basis(KNOTS if n_knots is None else n_knots)
     K = B.shape[1]
@@ -397,6 +404,8 @@ def solve_controls(
 
     c = controls(y)
     for _ in range(steps):
+        if stop is not None and stop():
+            raise Superseded
         both = rings.sums(transform.values(c, with_derivatives=True).reshape(N_CELLS, 3))
         Sr, Ss, Sq = both[..., 0], both[..., 1], both[..., 2]
         r, Jg = _residual_jacobian(Sr, Sr, goal_alpha, goal_mx, goal_var, weight)

@@ -116,9 +116,10 @@ def _weights(theta, alpha):
     return np.repeat(f[:, None], 3, axis=1)
 
 
-def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, draft=False):
+def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, draft=False, stop=None):
     """The reciprocal table for per-view targets ``vt``; returns (table, controls, report).
-    ``draft``: a quick, rougher solve (DRAFT_STEPS on every DRAFT_VIEW_STRIDE-th view)."""
+    ``draft``: a quick, rougher solve (DRAFT_STEPS on every DRAFT_VIEW_STRIDE-th view).
+    ``stop()``, asked before every step: True raises ``Superseded`` (the work is dropped)."""
     kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
     spec_rgb, spec_avg = R.spec_cubes(table, kd, prof.split, SOLVE_DTYPE)
     theta = np.asarray(prof.theta_o, float)
@@ -159,8 +160,11 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, dra
         weight[sub],
         start_controls=start,
         steps=DRAFT_STEPS if draft else None,
+        stop=stop,
     )
     del avg, spec_avg
+    if stop is not None and stop():
+        raise R.Superseded
     rgb = R.Transform(spec_rgb, ring_var)
     controls.log_g, unit = R.channel_gains(rgb, rings, controls, vt.alpha, weight[:, 0])
     return R.tabulate(table, rgb, controls, kd, unit), controls, report
@@ -294,6 +298,7 @@ def edit(
     region: ReachableRegion | None = None,
     draft: bool = False,
     keep: bool = False,
+    stop=None,
 ) -> EditResult:
     """Re-synthesize ``table`` for the slider ``targets``. Never modifies ``table``.
 
@@ -303,7 +308,9 @@ def edit(
     is called once per stage. ``draft``: the quick, rougher synthesis a slider drag shows first.
     Model mode runs the same synthesis toward the model's targets (``targets.view_targets``).
     ``keep``: remember this full synthesis (one per process), and take a remembered one made
-    from the same inputs instead of solving again (the live preview's, for Apply)."""
+    from the same inputs instead of solving again (the live preview's, for Apply). ``stop()``:
+    asked between the synthesis's steps; True gives the edit up (``Superseded``), so that work
+    nobody will see does not hold a core."""
     if prof is None:
         prof = compute_profiles(table)
     if fit is None:
@@ -349,7 +356,7 @@ def edit(
         out = kept.copy()  # the caller owns its table
     else:
         with one_thread():  # its dense algebra is tiny: OpenBLAS's thread hand-offs cost more
-            out = synthesize(table, prof, fit, vt, draft=draft)[0]
+            out = synthesize(table, prof, fit, vt, draft=draft, stop=stop)[0]
         if key is not None:
             _KEPT.clear()
             _KEPT[key] = out.copy()

@@ -18,12 +18,13 @@ LIVE_DIAMETER_DIV = 4  # the first live image: a quarter of the sphere's resolut
 LIVE_SAMPLES = 16
 
 
-def fast_edit(table, targets, prof, fit, draft=False, region=None, keep=False):
+def fast_edit(table, targets, prof, fit, draft=False, region=None, keep=False, stop=None):
     """The edit's synthesis, not re-measured: what a slider drag can afford (``draft``: the
-    quick, rougher solve shown first; ``keep``: remembered for an Apply of the same sliders)."""
+    quick, rougher solve shown first; ``keep``: remembered for an Apply of the same sliders;
+    ``stop()``: give up between steps, raising ``edit.Superseded``)."""
     from ..edit import edit
 
-    return edit(table, targets, prof, fit, remeasure=False, draft=draft, region=region, keep=keep).table
+    return edit(table, targets, prof, fit, remeasure=False, draft=draft, region=region, keep=keep, stop=stop).table
 
 
 def _profiles_key(prof, fit, mode):
@@ -68,17 +69,23 @@ def work(table, targets, prof, fit, env, diameter, stale=lambda: False, post=lam
     ('live', then 'refined'); stops early when ``stale()`` says a newer move came. ``region``:
     the material's stored reachable region (else computed once here). The full synthesis is
     kept (``edit(..., keep=True)``): an Apply of the same sliders writes it without solving again."""
+    from ..edit import Superseded
     from . import TableBRDF, bake_sphere
 
     region = region if region is not None else region_for(prof, fit, targets.mode)
-    new = fast_edit(table, targets, prof, fit, draft=True, region=region)
-    if stale():
+    try:
+        # A synthesis made moot (a newer move, an Apply) stops at its next step, not at the end
+        # of its stage: a drag otherwise leaves several syntheses sharing the two cores.
+        new = fast_edit(table, targets, prof, fit, draft=True, region=region, stop=stale)
+        if stale():
+            return
+        rgb, cov = bake_sphere(TableBRDF(new, prof), env, max(diameter // LIVE_DIAMETER_DIV, 8), LIVE_SAMPLES, 0)
+        post("live", rgb, cov)
+        if stale():
+            return
+        new = fast_edit(table, targets, prof, fit, region=region, keep=True, stop=stale)
+    except Superseded:
         return
-    rgb, cov = bake_sphere(TableBRDF(new, prof), env, max(diameter // LIVE_DIAMETER_DIV, 8), LIVE_SAMPLES, 0)
-    post("live", rgb, cov)
-    if stale():
-        return
-    new = fast_edit(table, targets, prof, fit, region=region, keep=True)
     if stale():
         return
     rgb, cov = bake_sphere(TableBRDF(new, prof), env, diameter, FINAL_SAMPLES, 0)
