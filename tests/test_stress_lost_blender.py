@@ -157,3 +157,20 @@ def test_a_damaged_edit_is_refused_by_export(analysed_gold, tmp_path, stress_log
         bpy.ops.brdf_moments.export(what="TABLE", directory=str(out), material="Gold")
     assert list(out.iterdir()) == []
     stress_log.record(CAT, "error", "Export of an edited table changed after Apply")
+
+
+def test_a_damaged_edit_is_refused_by_build_preview(analysed_gold, stress_log):
+    """Build Preview checks the edited table's seal in its work (off the main thread in a
+    window), and still refuses a damaged one in one line, before anything is shown."""
+    bpy, mat, src = analysed_gold
+    state = mat.brdf_moments
+    state.strength = 0.6
+    assert bpy.ops.brdf_moments.apply_edit(material="Gold") == {"FINISHED"}
+    with open(state.edited_path, "r+b") as fh:  # same size, one value changed
+        fh.seek(2000)
+        fh.write(np.array([321.0]).tobytes())
+    scenes = sorted(s.name for s in bpy.data.scenes)
+    with pytest.raises(RuntimeError, match="damaged"):
+        bpy.ops.brdf_moments.build_preview(material="Gold", size=32, samples=1)
+    assert sorted(s.name for s in bpy.data.scenes) == scenes  # no preview scene made
+    stress_log.record(CAT, "error", "Build Preview of an edited table changed after Apply")

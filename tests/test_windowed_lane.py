@@ -350,7 +350,11 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
     # not ours by that alone: a cold-disk import of 30 ms inside a 2 s draw was, in CI.)
     for st in data.get("stalls", []):
         if st["job"] and not st["driver"]:
-            assert st["ours_seconds"] < 0.2, st
+            # The 0.2 s is the add-on's main-thread CPU; on the wall its Python may take longer
+            # while Blender's rasterizer threads hold both cores (1.0-1.9 cores of llvmpipe here
+            # through every job): bounded loosely, so a real hog on the main thread still fails.
+            assert st["ours_cpu_seconds"] < 0.2, st
+            assert st["ours_seconds"] < 0.6, st
 
 
 def test_screenshots_show_the_window(lane):

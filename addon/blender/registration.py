@@ -46,7 +46,9 @@ def _file_loaded(*_args):
         st = getattr(mat, "brdf_moments", None)
         if st is not None and st.analysed and st.profiles_data:
             try:
-                state.plot_image(mat)
+                # In a window drawn in a thread (a 0.2 s plot on the main thread stalled a job
+                # in the windowed lane); the stored image shows until it is in.
+                state.plot_image(mat, later=True)
                 if st.fit().get("mu_slope") is not None:
                     views.add(tuple(st.profiles().theta_o))
             except (ValueError, RuntimeError):

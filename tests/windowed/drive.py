@@ -199,10 +199,49 @@ def last_job():
     return jobs().HISTORY[-1] if jobs().HISTORY else None
 
 
+class held_apply:
+    """Apply's child sleeps ``seconds`` after its work: the job stays running long enough for a
+    key press to arrive while it runs. On this machine Blender's software-GL frames hold the main
+    loop for up to ~4 s, so an event may be handled only then, and an Apply takes 2-4 s; without
+    the hold the key could race the job's end. The job machinery (the modal handler, the events
+    it passes on or keeps, Esc) is the real one; the held Apply's time is not quoted."""
+
+    def __init__(self, seconds):
+        self.seconds = seconds
+
+    def __enter__(self):
+        cls = sys.modules["brdf_moments.operators.apply_edit"].BRDFMOMENTS_OT_apply_edit
+        self.cls, self.start, hold = cls, cls.start, self.seconds
+
+        def start(op, context):
+            work = self.start(op, context)
+
+            def held(report_progress):
+                out = work(report_progress)
+                time.sleep(hold)  # in the child process
+                return out
+
+            return held
+
+        cls.start = start
+        return self
+
+    def __exit__(self, *exc):
+        self.cls.start = self.start
+
+
 # --- the artist's session ---------------------------------------------------------------------
 
 
 def session():
+    # BRDF_MOMENTS_LANE_VIEWPORT_AA (a manual experiment, not CI): Blender's viewport
+    # anti-aliasing preference for this run. At its default (8 samples) every image change
+    # (the live preview, the plots) makes the 3D view re-accumulate 8 frames, ~6 s of two cores
+    # in software GL (BENCHMARKS "Workflow in a real window").
+    aa = os.environ.get("BRDF_MOMENTS_LANE_VIEWPORT_AA")
+    if aa:
+        bpy.context.preferences.system.viewport_aa = aa
+    result["viewport_aa"] = bpy.context.preferences.system.viewport_aa
     yield 1.0
     key_over("VIEW_3D", "Escape")  # closes the first-run splash
     area("PROPERTIES").spaces.active.context = "MATERIAL"
@@ -262,7 +301,8 @@ def session():
     # behind it: it sees the events only if the job passes them on.
     with override():
         bpy.ops.wm.windowed_probe("INVOKE_DEFAULT")
-    status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
+    with held_apply(8.0):
+        status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
     yield 0.5
     sidebar = area("VIEW_3D").spaces.active.show_region_ui
     key_over("VIEW_3D", "n")
@@ -296,7 +336,8 @@ def session():
 
     # A second Apply, cancelled with a real Esc: the material stays as the first Apply left it.
     s.sigma2 = s.fit_sigma2 * 2.5
-    status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
+    with held_apply(8.0):
+        status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
     yield 1.0
     running_before_esc = bool(jobs().running())
     key_over("VIEW_3D", "Escape")
@@ -480,7 +521,7 @@ def probe():
             )
         probe_ticks.append(now)
         if not cpu_marks or now - cpu_marks[-1][0] > 0.5:
-            cpu_marks.append((now, time.process_time()))  # Blender's CPU time, all its threads
+            cpu_marks.append((now, time.process_time(), thread_cpu()))  # Blender's CPU time, all its threads
         # Runs of the add-on's own Python on the main thread (panel drawing, a job's modal and
         # finish): how long our code, not Blender's drawing, holds the main loop at a time.
         f = sys._current_frames().get(main)
@@ -491,9 +532,10 @@ def probe():
         if ours_now:
             where = inner_ours(sys._current_frames().get(main))
             if run_start is None:
-                run_start, run_where = now, where
+                run_start, run_where, run_cpu = now, where, main_thread_cpu()
         elif run_start is not None:
             ours_runs.append((run_start, now, run_where))
+            ours_cpu.append((run_start, now, main_thread_cpu() - run_cpu))
             run_start = None
         last = ticks[-1] if ticks else None
         if last is None or now - last < STALL or sampled == last:
@@ -508,11 +550,42 @@ def probe():
             stalls[-1]["ours_where"] = where  # the add-on's frames at that instant
 
 
+def thread_cpu():
+    """Blender's CPU seconds so far by thread name, digits dropped ("llvmpipe-3" -> "llvmpipe":
+    the software GL rasterizer's threads; "blender": the main thread, its task pool and jobs,
+    Python's threads). Read from /proc, which any thread may do without touching Blender."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as fh:
+                raw = fh.read()
+        except OSError:
+            continue  # the thread ended
+        name, rest = raw[raw.index("(") + 1 : raw.rindex(")")], raw[raw.rindex(")") + 2 :].split()
+        key = name.rstrip("0123456789").rstrip("-:_ ") or name
+        out[key] = out.get(key, 0.0) + (int(rest[11]) + int(rest[12])) / tick  # utime + stime
+    return out
+
+
+def main_thread_cpu():
+    """The main thread's own CPU seconds so far (/proc; 10 ms resolution). A run of the add-on's
+    Python on the main thread lasts longer on the wall than in CPU when Blender's rasterizer
+    threads hold both cores: the CPU is what the add-on spent, the rest it waited."""
+    try:
+        with open(f"/proc/self/task/{threading.main_thread().native_id}/stat") as fh:
+            rest = fh.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(rest[11]) + int(rest[12])) / os.sysconf("SC_CLK_TCK")
+
+
 probe_ticks = []
-cpu_marks = []  # (monotonic, process CPU seconds) every 0.5 s
+cpu_marks = []  # (monotonic, process CPU seconds, {thread name: CPU seconds}) every 0.5 s
 gil_gaps = []  # the probe's gaps over GIL_GAP s, with every thread's stack right after
 GIL_GAP = 0.15
-ours_runs = []  # (start, end) of sampled runs of the add-on's Python on the main thread
+ours_runs = []  # (start, end, where) of sampled runs of the add-on's Python on the main thread
+ours_cpu = []  # (start, end, main-thread CPU seconds) of the same runs
 stalls = []  # main-loop stalls over STALL s, with what the main thread ran
 STALL = 0.25
 
@@ -523,6 +596,16 @@ def cpu_share(start, end):
     if len(inside) < 2:
         return None
     return (inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0])
+
+
+def cpu_by_thread(start, end):
+    """The same share split by thread name (``thread_cpu``), in cores; threads that ended
+    inside the span are missing from its last mark, so the parts may sum to less."""
+    inside = [m for m in cpu_marks if start <= m[0] <= end]
+    if len(inside) < 2:
+        return None
+    (t0, _, a), (t1, _, b) = inside[0], inside[-1]
+    return {k: round((b[k] - a.get(k, 0.0)) / (t1 - t0), 3) for k in sorted(b) if b[k] - a.get(k, 0.0) > 0.0}
 
 
 def finish():
@@ -538,6 +621,8 @@ def finish():
         # How long the add-on's own Python held the main thread inside the stall: one sample
         # showing its frames says only that it ran at that instant (a 10 ms import, say).
         st["ours_seconds"] = sum(max(0.0, min(b, end) - max(a, st["since"])) for a, b, _ in ours_runs)
+        # The CPU of the runs that overlap the stall (whole runs: CPU is not known within one).
+        st["ours_cpu_seconds"] = sum(c for a, b, c in ours_cpu if a < end and b > st["since"])
         st["driver"] = any(a < st["since"] + st["length"] and b > st["since"] for a, b in driver_busy)
         st["job"] = next(
             (
@@ -552,6 +637,10 @@ def finish():
     result["idle"]["blender_cpu"] = (
         cpu_share(result["idle"]["start"], result["idle"]["end"]) if "idle" in result else None
     )
+    if cpu_marks:
+        result["blender_cpu_by_thread"] = cpu_by_thread(cpu_marks[0][0], cpu_marks[-1][0])  # the whole session
+    if "idle" in result:
+        result["idle"]["blender_cpu_by_thread"] = cpu_by_thread(result["idle"]["start"], result["idle"]["end"])
     result["ours_longest"] = max(((b - a, w) for a, b, w in ours_runs), default=(0.0, []))
     for job in jobs().HISTORY:
         gap, n = largest_gap(job["start"], job["end"])
@@ -563,6 +652,7 @@ def finish():
                 "largest_gap": gap,
                 "largest_gil_gap": largest_gap(job["start"], job["end"], probe_ticks)[0],
                 "blender_cpu": cpu_share(job["start"], job["end"]),
+                "blender_cpu_by_thread": cpu_by_thread(job["start"], job["end"]),
                 "largest_ours": max(
                     [
                         min(b, job["end"]) - max(a, job["start"])
