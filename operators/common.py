@@ -98,11 +98,13 @@ def store_analysis(mat, path, result) -> str:
     state.store_analysis(prof, fit, keep_sliders=again)
     state.source_stamp = source_stamp(path)
     state.region_data = json.dumps(regions)
+    state.refresh_announcement()
     if not again:
         state.edited_path = ""
         state.edited_profiles_data = ""
         state.edit_warnings = ""
         state.edit_fidelity = ""
+        state.edit_report = ""
         state.principled_data = ""
     plot_image(mat, prof, fit, edited=None if again else False, later=True)
     region_image(mat, later=True)

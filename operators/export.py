@@ -106,6 +106,12 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
             check_sealed(state.edited_path, "edited table (Apply's cache)")
             write_merl(read_merl(state.edited_path), dest, source=source_file(bpy.path.abspath(state.source_path)))
             written.append(dest)
+            if state.edit_report:
+                # The per-view promise beside the table (what `edit --report` writes), so anyone
+                # can check the edit without the extension.
+                dest = safe_export_path(folder, f"{base}_edited_report", ".json")
+                _write_json(json.loads(state.edit_report), dest)
+                written.append(dest)
         elif self.what == "PROFILES":
             data = {"material": mat.name, "source": state.source_path, "measured": state.profiles().to_json()}
             edited = state.edited_profiles()

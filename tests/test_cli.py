@@ -112,7 +112,8 @@ def test_edit_without_sliders_copies_values_and_never_overwrites(tmp_path):
     out = tmp_path / "same.binary"
     res = run("edit", src, "--out", str(out))
     assert res.returncode == 0, res.stderr
-    assert "achieved mean slope" in res.stdout and "largest directional albedo" in res.stdout
+    assert "re-fit    mean slope" in res.stdout and "largest directional albedo" in res.stdout
+    assert "announced mean slope" in res.stdout
     np.testing.assert_array_equal(read_merl(out).rho, read_merl(src).rho)
     res = run("edit", src, "--out", src, "--alpha-scale", "0.5")
     assert res.returncode == 2 and "overwrite the input" in res.stderr

@@ -203,6 +203,8 @@ def cmd_edit(args):
     from ..core.nbrdf import parse_source, read_table
 
     _guard(args.out, args.file)
+    if args.report:
+        _guard(args.report, args.file, args.out)
     table = read_table(args.file)
     colour = args.alpha or (1.0, 1.0, 1.0)
     targets = EditTargets(
@@ -219,21 +221,28 @@ def cmd_edit(args):
         shown[:] = [done, total]
         bar(done, total)
 
-    prof = None
-    if args.floor != "min":
-        from ..core.profiles import compute_profiles
+    from ..core.profiles import compute_profiles
 
-        prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd
+    prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd; the report compares with it
     try:
         res = edit(table, targets, prof, progress=on_round if bar else None)
     finally:
         if bar and shown[0] < shown[1]:
             sys.stderr.write("\n")  # an error cut the rounds short: end the bar's line before it
     write_merl(res.table, args.out, source=parse_source(args.file)[0])
-    mu = "—" if res.achieved_mu_slope is None else f"{res.achieved_mu_slope:+.4f}"
-    s2 = "—" if res.achieved_sigma2 is None else f"{res.achieved_sigma2:.5f}"
-    print(f"target   mean slope {res.target_mu_slope:+.4f}  variance {res.target_sigma2:.5f}")
-    print(f"achieved mean slope {mu}  variance {s2}")
+    if args.report:
+        from ..core.atomic import write_json_atomic
+        from ..core.edit.fidelity import report
+
+        write_json_atomic(report(res, prof), args.report, (args.file,))
+    said = lambda v, fmt: "—" if v is None else format(v, fmt)  # noqa: E731
+    if res.requested is not None:
+        print(f"request   mean slope {said(res.requested[0], '+.4f')}  variance {said(res.requested[1], '.5f')}")
+    print(
+        f"announced mean slope {said(res.announced[0], '+.4f')}  variance {said(res.announced[1], '.5f')}"
+        + ("  (clamped: nothing to do)" if res.nothing_to_do else "  (clamped)" if res.clamped else "")
+    )
+    print(f"re-fit    mean slope {said(res.achieved_mu_slope, '+.4f')}  variance {said(res.achieved_sigma2, '.5f')}")
     print("largest directional albedo (r, g, b): " + ", ".join(f"{v:.4f}" for v in res.max_albedo))
     if res.region is not None:
         lo, hi = res.region.mu_range(res.target_sigma2)
@@ -354,6 +363,11 @@ def build_parser():
     se.add_argument("--mu", type=_finite, help="target mean slope in [-1, 0]")
     se.add_argument("--sigma2", type=_finite, help="target average variance in (0, pi^2/12]")
     se.add_argument("--mode", choices=("warp", "model"), default="warp")
+    se.add_argument(
+        "--report",
+        help="also write the per-view promise and what the table re-measures to (JSON: theta_o, judged, "
+        "out_of_reach, clamped, announced, target and achieved per channel)",
+    )
     _floor_option(se)
     se.set_defaults(func=cmd_edit)
 
@@ -405,7 +419,9 @@ def build_parser():
     sb = sub.add_parser("bench", help="benchmark tables (run time against error)")
     sb.add_argument("--quick", action="store_true", help="fewer repetitions and views")
     sb.add_argument(
-        "--only", nargs="*", help="sections to run (closed, tables, memory, fits, edit, preview, measured, artist)"
+        "--only",
+        nargs="*",
+        help="sections to run (closed, tables, memory, fits, rule, edit, preview, measured, artist)",
     )
     sb.set_defaults(func=cmd_bench)
     return p

@@ -125,6 +125,22 @@ def _worst(err, mask, theta):
     return float(e.max()), round(float(np.degrees(theta[k])), 1)
 
 
+def out_of_reach(targets: ViewTargets, original: Profiles):
+    """(judged, reachable), both (V, 3): the views an edit is judged on (5-80 deg, >= 5 % of the
+    channel's peak target energy) and whether each view's target is in reach
+    (``reach.view_reachable`` against the measured moments)."""
+    theta = np.asarray(targets.theta_o, float)
+    reachable = view_reachable(
+        theta,
+        targets.mean,
+        targets.var_tt,
+        targets.var_pp,
+        _stack(original, "mu_theta"),
+        0.5 * (_stack(original, "sigma_tt") + _stack(original, "sigma_pp")),
+    )
+    return counted_views(theta, targets.alpha), reachable
+
+
 def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) -> Fidelity:
     """Per-view fidelity of ``edited`` (a MerlTable or its Profiles, measured with the original's kd).
 
@@ -137,18 +153,8 @@ def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) ->
             edited, original.theta_o, kd=original.kd if original.split else None, split=original.split
         )
     theta = np.asarray(targets.theta_o, float)
-    counted = counted_views(theta, targets.alpha)
-    if reachable is None:
-        reachable = view_reachable(
-            theta,
-            targets.mean,
-            targets.var_tt,
-            targets.var_pp,
-            _stack(original, "mu_theta"),
-            0.5 * (_stack(original, "sigma_tt") + _stack(original, "sigma_pp")),
-        )
-    if targets.beyond is not None:
-        reachable = reachable & ~targets.beyond
+    counted, reach = out_of_reach(targets, original)
+    reachable = reach if reachable is None else reachable
     use = counted & reachable
     alpha = np.nan_to_num(_stack(prof, "alpha"))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -185,3 +191,83 @@ def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) ->
         excluded = [round(float(d), 1) for d in np.degrees(theta[counted[:, i] & ~reachable[:, i]])]
         channels[ch] = ChannelFidelity(ch, int(u.sum()), en, vm, vw, mn, sh, excluded, where)
     return Fidelity(channels, prof)
+
+
+def _clean(a):
+    """A list for JSON: NaN/inf become null (SPEC §7: never a NaN in a JSON)."""
+    return [float(v) if math.isfinite(v) else None for v in np.asarray(a, float).ravel()]
+
+
+def _per_channel(rgb, avg):
+    out = {ch: _clean(rgb[:, i]) for i, ch in enumerate(RGB)}
+    out["avg"] = _clean(avg)
+    return out
+
+
+def _target_shape(vt: ViewTargets, original: Profiles):
+    """(skewness, kurtosis) targets, theta axis, per channel and average: warp mode keeps the
+    measured ones; model mode's lobe is a clipped Gaussian, whose own are closed forms."""
+    if vt.shape is not None:
+        p = original["avg"]
+        return (
+            (vt.shape["skew_30"], np.asarray(p["skew_30"], float)),
+            (vt.shape["kurt_40"], np.asarray(p["kurt_40"], float)),
+        )
+    from .. import truncated
+
+    centre, width, _ = truncated.solve(vt.avg_mean, vt.avg_var)
+    _, c2, c3, c4, _ = truncated.z_moments(centre, width)
+    skew, kurt = c3 / c2**1.5, c4 / c2**2 - 3.0
+    rep = lambda a: np.repeat(a[:, None], 3, axis=1)  # noqa: E731
+    return (rep(skew), skew), (rep(kurt), kurt)
+
+
+def report(result, original: Profiles) -> dict:
+    """The promise and what the written table re-measures to, per view (SPEC §3, ``edit --report``
+    and Export): anyone can check an edit without the extension. Angles in radians; ``variance``
+    is (Sigma_tt + Sigma_pp) / 2, ``skewness``/``kurtosis`` the theta axis's standardized
+    (excess) ones; each per channel ``r``, ``g``, ``b`` and ``avg``; null where undefined."""
+    vt = result.targets
+    got = result.profiles
+    if got is None:
+        got = compute_profiles(
+            result.table, original.theta_o, kd=original.kd if original.split else None, split=original.split
+        )
+    judged, reach = out_of_reach(vt, original)
+    (skew_t, skew_t_avg), (kurt_t, kurt_t_avg) = _target_shape(vt, original)
+    a = lambda key, ch="avg": np.asarray(got[ch][key], float)  # noqa: E731
+    var = lambda ch: 0.5 * (a("sigma_tt", ch) + a("sigma_pp", ch))  # noqa: E731
+    fid = result.fidelity.summary() if result.fidelity is not None else None
+    num = lambda v: None if v is None or not math.isfinite(v) else float(v)  # noqa: E731
+    return {
+        "theta_o": _clean(vt.theta_o),
+        "mode": vt.mode,
+        "judged": [bool(v) for v in judged.any(axis=1)],
+        "out_of_reach": [bool(v) for v in (judged & ~reach).any(axis=1)],
+        "clamped": bool(result.clamped),
+        "nothing_to_do": bool(result.nothing_to_do),
+        "requested": dict(zip(("mu_slope", "sigma2"), map(num, result.requested or (None, None)))),
+        "announced": dict(zip(("mu_slope", "sigma2"), map(num, result.announced))),
+        "refit": {"mu_slope": num(result.achieved_mu_slope), "sigma2": num(result.achieved_sigma2)},
+        "target": {
+            "alpha": _per_channel(vt.alpha, vt.alpha.mean(axis=1)),
+            "mu_theta": _per_channel(vt.mean, vt.avg_mean),
+            "variance": _per_channel(vt.variance, vt.avg_var),
+            "skewness": _per_channel(skew_t, skew_t_avg),
+            "kurtosis": _per_channel(kurt_t, kurt_t_avg),
+        },
+        "achieved": {
+            key: {**{ch: _clean(f(ch)) for ch in RGB}, "avg": _clean(f("avg"))}
+            for key, f in (
+                ("alpha", lambda ch: a("alpha", ch)),
+                ("mu_theta", lambda ch: a("mu_theta", ch)),
+                ("variance", var),
+                ("skewness", lambda ch: a("skew_30", ch)),
+                ("kurtosis", lambda ch: a("kurt_40", ch)),
+            )
+        },
+        "figures": None if fid is None else {k: (v if isinstance(v, bool) else num(v)) for k, v in fid.items()},
+        # A clamp back to the fit changed nothing: that is never a met edit (SPEC §3).
+        "meets": bool(fid is not None and fid["meets"] and not result.nothing_to_do),
+        "tolerances": dict(TOLERANCES),
+    }
