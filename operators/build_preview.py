@@ -71,7 +71,8 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
         from ..addon.core.cachefs import check_sealed
         from ..addon.core.limits import check_int
         from ..addon.core.merl import read_merl
-        from ..addon.core.nbrdf import read_table, source_exists, source_file
+        from ..addon.core.nbrdf import read_table
+        from ..addon.core.sources import source_exists, source_file
         from ..addon.core.safeio import guard_output
         from ..addon.core.render import TableBRDF, sphere_layout
         from ..addon.blender.preview import bake_cache, load_environment, resolve_environment
@@ -208,7 +209,7 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
         what = "sketch (moment model)" if job["mode"] == "model" else "tabulated"
         text = f"Preview ({info.path}, {what}) in the image '{preview_image_name(mat)}'"
         if self.render_to:
-            from ..addon.core.nbrdf import source_file
+            from ..addon.core.sources import source_file
             from ..addon.core.safeio import guard_output
 
             out = bpy.path.abspath(self.render_to)

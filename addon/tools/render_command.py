@@ -12,7 +12,7 @@ import time
 
 def _preflight(args, input_error):
     """Checks that need no Blender: the output's name and the guard against the inputs."""
-    from ..core.nbrdf import parse_source
+    from ..core.sources import parse_source
     from ..core.safeio import guard_output
 
     out = os.fspath(args.out)
