@@ -1,17 +1,21 @@
 """``python -m addon bench``: run time against error, printed as Markdown tables.
 
-Sections:
-  closed   truncated Gaussian slices (closed-form moments): Monte Carlo (paper Eq. 6), a
-           uniform 256^2 grid, and the function interface of the project's integrator;
-  tables   tabulated samples and measured tables against the converged adaptive reference, for
-           the cached operator (all 90 views timed), Monte Carlo and the uniform grid (analytic
-           samples only); at grazing views the full run uses a larger reference budget and
-           prints the reference's change between the two budgets;
-  memory   peak resident memory of one material's analysis, in a fresh process.
-  preview  Cycles preview render time against error, both paths (addon/tools/bench_preview.py).
-  measured the 59 measured materials through analyze, both diffuse floors (addon/tools/bench_measured.py).
-  artist   what the artist sees: every preview mode, the live preview and its latency, the
-           Principled approximation of the artist's material (addon/tools/bench_artist.py).
+Each section prints under the heading of its area in BENCHMARKS.md (``AREAS``):
+  closed    Profiles: truncated Gaussian slices (closed-form moments): Monte Carlo (paper
+            Eq. 6), a uniform 256^2 grid, and the function interface of the project's integrator;
+  tables    Profiles: tabulated samples and measured tables against the converged adaptive
+            reference, for the cached operator (all 90 views timed), Monte Carlo and the uniform
+            grid (analytic samples only); at grazing views the full run uses a larger reference
+            budget and prints the reference's change between the two budgets;
+  trilinear Profiles: the trilinear reading through its cached operator;
+  memory    Memory: peak resident memory of one material's analysis, in a fresh process;
+  fits      Fits: the fits alone, and ``analyze`` over a synthetic set;
+  edit      Editing, per view;
+  preview   Preview: render time against error, both paths (addon/tools/bench_preview.py);
+  measured  Measured materials: the 59 through analyze, both diffuse floors (bench_measured.py);
+  artist    The artist's material and the default preview against the converged reference, the
+            Principled approximation (addon/tools/bench_artist.py);
+  live      Live preview: slider move to the first image (artist ends with it; alone with --only live).
 
 Times are medians over repeats in this one run; the machine is shared, so compare ratios.
 """
@@ -31,6 +35,19 @@ import numpy as np
 ALL_SECTIONS = ("closed", "tables", "trilinear", "memory", "fits", "edit", "preview", "measured", "artist")
 # "live" is part of "artist" (its last table); alone it needs no bpy
 EXTRA_SECTIONS = ("live",)  # run only when asked for with --only
+# The area of BENCHMARKS.md each section's tables belong under (its "## " heading).
+AREAS = {
+    "closed": "Profiles",
+    "tables": "Profiles",
+    "trilinear": "Profiles",
+    "memory": "Memory",
+    "fits": "Fits",
+    "edit": "Editing, per view",
+    "preview": "Preview",
+    "measured": "Measured materials",
+    "artist": "The artist's material",
+    "live": "Live preview",
+}
 
 
 def _median_time(fn, repeat):
@@ -789,10 +806,15 @@ def main(args):
     if unknown:
         raise ValueError(f"unknown bench section(s): {', '.join(sorted(unknown))}")
     print(
-        f"## Benchmarks ({time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores, "
-        f"Python {platform.python_version()}, numpy {np.__version__})\n"
+        f"Benchmarks run {time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC: {platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}, numpy {np.__version__}, load average "
+        f"{', '.join(f'{x:.1f}' for x in os.getloadavg())}\n"
     )
+    area = None
     for name in sections:
+        if AREAS[name] != area:
+            area = AREAS[name]
+            print(f"## {area}\n", flush=True)
         lines = {
             "closed": lambda: bench_closed(args.quick),
             "tables": lambda: bench_tables(args.quick),
