@@ -40,8 +40,8 @@ def analysis_work(path, floor="min"):
     """A function of ``report_progress`` that reads, analyses and fits ``path`` (no bpy)."""
     from ..addon.core.fits import fit_material
     from ..addon.core.nbrdf import read_table
-    from ..addon.core.sources import source_exists
     from ..addon.core.profiles import compute_profiles
+    from ..addon.core.sources import source_exists
 
     path = bpy.path.abspath(path) if path.startswith("//") else path
     if not path:

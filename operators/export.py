@@ -21,9 +21,9 @@ def _write_json(data, path):
 
 def _write_png(mat, path, edited):
     """The profile figure with matplotlib where it exists, else the panel's own image."""
-    from ..addon.core.atomic import atomic_path
-
     import importlib.util
+
+    from ..addon.core.atomic import atomic_path
 
     state = mat.brdf_moments
     prof = state.edited_profiles() if edited else state.profiles()

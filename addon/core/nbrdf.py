@@ -23,14 +23,14 @@ as for bad MERL files.
 
 from __future__ import annotations
 
-import os
 import hashlib
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from .merl import MAX_REFLECTANCE, N_CELLS, RES_PD, RES_TD, RES_TH, MerlError, MerlTable
 from .geometry import HALF_PI
+from .merl import MAX_REFLECTANCE, N_CELLS, RES_PD, RES_TD, RES_TH, MerlError, MerlTable
 from .sources import is_weights_source, parse_source
 
 # Bump when the decoded values change (position, clipping): cached tables then re-decode.

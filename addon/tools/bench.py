@@ -248,6 +248,7 @@ def bench_trilinear(quick):
     the usual mask), against the nearest-cell reading, per material (90 views, 15 moments,
     4 channel sets); the operator's cold build is timed when this run makes it."""
     import samples
+
     from ..core.integrate import default_cache_dir
     from ..core.merl import read_merl
     from ..core.profiles import compute_profiles
@@ -322,6 +323,7 @@ def _view_errors(got, want):
 
 def bench_tables(quick, names=None):
     import samples
+
     from ..core.integrate import default_cache_dir, default_views, grid_sums, table_slice_evaluator
     from ..core.merl import read_merl
     from ..core.profiles import _stats, compute_profiles, diffuse_floor, monte_carlo_profiles, specular_values
@@ -539,10 +541,11 @@ def bench_fits(quick):
     import tempfile
 
     import samples
-    from .analyze import analyze
+
     from ..core.fits import fit_material
     from ..core.merl import read_merl, tabulate, write_merl
     from ..core.profiles import compute_profiles
+    from .analyze import analyze
 
     names = ("ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "phong", "red_plastic")
     times = []
@@ -670,6 +673,7 @@ def bench_edit(quick):
     skewness/kurtosis change up to 60 deg; views whose target is out of reach are listed as a
     share, not counted. Times: the synthesis, and the whole Apply (synthesis + re-measure)."""
     import samples
+
     from ..core.edit import edit
     from ..core.edit.fidelity import TOLERANCES
     from ..core.edit.reach import reachable_region

@@ -47,7 +47,6 @@ def _bounded(high):
 def _guard(out, *inputs):
     """Refuse a bad destination before any work (atomic_path checks again when writing)."""
     from ..core.safeio import guard_output
-
     from ..core.sources import parse_source
 
     # FILE:NAME (a material of a weights set) reads FILE: that is the input to protect.
@@ -131,9 +130,9 @@ def cmd_profiles(args):
 
 
 def cmd_fit(args):
-    from .analyze import collect_inputs, input_names, load_profiles
     from ..core.atomic import write_json_atomic
     from ..core.fits import fit_set
+    from .analyze import collect_inputs, input_names, load_profiles
 
     _single_materials(args.files)
     paths, problems = collect_inputs(args.files)
