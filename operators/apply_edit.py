@@ -52,9 +52,10 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         from ..addon.core.edit import edit, scale_to_albedo
         from ..addon.core.fits import fit_material
         from ..addon.core.merl import write_merl
-        from ..addon.core.nbrdf import read_table, source_file
         from ..addon.core.names import safe_name
+        from ..addon.core.nbrdf import read_table
         from ..addon.core.profiles import compute_profiles
+        from ..addon.core.sources import source_file
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments

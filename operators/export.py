@@ -21,9 +21,9 @@ def _write_json(data, path):
 
 def _write_png(mat, path, edited):
     """The profile figure with matplotlib where it exists, else the panel's own image."""
-    from ..addon.core.atomic import atomic_path
-
     import importlib.util
+
+    from ..addon.core.atomic import atomic_path
 
     state = mat.brdf_moments
     prof = state.edited_profiles() if edited else state.profiles()
@@ -100,7 +100,7 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
         if self.what == "TABLE":
             if not state.edited_path or not os.path.isfile(state.edited_path):
                 raise ValueError(f"{mat.name}: nothing to export yet; press Apply to re-synthesize the table")
-            from ..addon.core.nbrdf import source_file
+            from ..addon.core.sources import source_file
 
             dest = safe_export_path(folder, f"{base}_edited", ".binary")
             check_sealed(state.edited_path, "edited table (Apply's cache)")

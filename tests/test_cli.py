@@ -104,6 +104,7 @@ def test_edit_without_sliders_copies_values_and_never_overwrites(tmp_path):
     import hashlib
 
     import numpy as np
+
     import samples
     from addon.core.merl import read_merl
 

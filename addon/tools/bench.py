@@ -1,17 +1,21 @@
 """``python -m addon bench``: run time against error, printed as Markdown tables.
 
-Sections:
-  closed   truncated Gaussian slices (closed-form moments): Monte Carlo (paper Eq. 6), a
-           uniform 256^2 grid, and the function interface of the project's integrator;
-  tables   tabulated samples and measured tables against the converged adaptive reference, for
-           the cached operator (all 90 views timed), Monte Carlo and the uniform grid (analytic
-           samples only); at grazing views the full run uses a larger reference budget and
-           prints the reference's change between the two budgets;
-  memory   peak resident memory of one material's analysis, in a fresh process.
-  preview  Cycles preview render time against error, both paths (addon/tools/bench_preview.py).
-  measured the 59 measured materials through analyze, both diffuse floors (addon/tools/bench_measured.py).
-  artist   what the artist sees: every preview mode, the live preview and its latency, the
-           Principled approximation of the artist's material (addon/tools/bench_artist.py).
+Each section prints under the heading of its area in BENCHMARKS.md (``AREAS``):
+  closed    Profiles: truncated Gaussian slices (closed-form moments): Monte Carlo (paper
+            Eq. 6), a uniform 256^2 grid, and the function interface of the project's integrator;
+  tables    Profiles: tabulated samples and measured tables against the converged adaptive
+            reference, for the cached operator (all 90 views timed), Monte Carlo and the uniform
+            grid (analytic samples only); at grazing views the full run uses a larger reference
+            budget and prints the reference's change between the two budgets;
+  trilinear Profiles: the trilinear reading through its cached operator;
+  memory    Memory: peak resident memory of one material's analysis, in a fresh process;
+  fits      Fits: the fits alone, and ``analyze`` over a synthetic set;
+  edit      Editing, per view;
+  preview   Preview: render time against error, both paths (addon/tools/bench_preview.py);
+  measured  Measured materials: the 59 through analyze, both diffuse floors (bench_measured.py);
+  artist    The artist's material and the default preview against the converged reference, the
+            Principled approximation (addon/tools/bench_artist.py);
+  live      Live preview: slider move to the first image (artist ends with it; alone with --only live).
 
 Times are medians over repeats in this one run; the machine is shared, so compare ratios.
 """
@@ -31,6 +35,19 @@ import numpy as np
 ALL_SECTIONS = ("closed", "tables", "trilinear", "memory", "fits", "rule", "edit", "preview", "measured", "artist")
 # "live" is part of "artist" (its last table); alone it needs no bpy
 EXTRA_SECTIONS = ("live",)  # run only when asked for with --only
+# The area of BENCHMARKS.md each section's tables belong under (its "## " heading).
+AREAS = {
+    "closed": "Profiles",
+    "tables": "Profiles",
+    "trilinear": "Profiles",
+    "memory": "Memory",
+    "fits": "Fits",
+    "edit": "Editing, per view",
+    "preview": "Preview",
+    "measured": "Measured materials",
+    "artist": "The artist's material",
+    "live": "Live preview",
+}
 
 
 def _median_time(fn, repeat):
@@ -231,6 +248,7 @@ def bench_trilinear(quick):
     the usual mask), against the nearest-cell reading, per material (90 views, 15 moments,
     4 channel sets); the operator's cold build is timed when this run makes it."""
     import samples
+
     from ..core.integrate import default_cache_dir
     from ..core.merl import read_merl
     from ..core.profiles import compute_profiles
@@ -305,6 +323,7 @@ def _view_errors(got, want):
 
 def bench_tables(quick, names=None):
     import samples
+
     from ..core.integrate import default_cache_dir, default_views, grid_sums, table_slice_evaluator
     from ..core.merl import read_merl
     from ..core.profiles import _stats, compute_profiles, diffuse_floor, monte_carlo_profiles, specular_values
@@ -522,10 +541,11 @@ def bench_fits(quick):
     import tempfile
 
     import samples
-    from .analyze import analyze
+
     from ..core.fits import fit_material
     from ..core.merl import read_merl, tabulate, write_merl
     from ..core.profiles import compute_profiles
+    from .analyze import analyze
 
     names = ("ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "phong", "red_plastic")
     times = []
@@ -627,6 +647,7 @@ def bench_edit(quick):
     announced (mu~, sigma~^2) beside the re-fitted ones. Times: the synthesis, and the whole
     Apply (synthesis + re-measure)."""
     import samples
+
     from ..core.edit import edit
     from ..core.edit.fidelity import TOLERANCES
     from ..core.edit.reach import reachable_region
@@ -818,10 +839,15 @@ def main(args):
     if unknown:
         raise ValueError(f"unknown bench section(s): {', '.join(sorted(unknown))}")
     print(
-        f"## Benchmarks ({time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores, "
-        f"Python {platform.python_version()}, numpy {np.__version__})\n"
+        f"Benchmarks run {time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC: {platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}, numpy {np.__version__}, load average "
+        f"{', '.join(f'{x:.1f}' for x in os.getloadavg())}\n"
     )
+    area = None
     for name in sections:
+        if AREAS[name] != area:
+            area = AREAS[name]
+            print(f"## {area}\n", flush=True)
         lines = {
             "closed": lambda: bench_closed(args.quick),
             "tables": lambda: bench_tables(args.quick),

@@ -47,8 +47,7 @@ def _bounded(high):
 def _guard(out, *inputs):
     """Refuse a bad destination before any work (atomic_path checks again when writing)."""
     from ..core.safeio import guard_output
-
-    from ..core.nbrdf import parse_source
+    from ..core.sources import parse_source
 
     # FILE:NAME (a material of a weights set) reads FILE: that is the input to protect.
     return guard_output(out, [parse_source(p)[0] for p in inputs if p])
@@ -89,7 +88,8 @@ def _progress(label, always=False):
 
 def _single_materials(specs):
     """A weights set named with no material is an error for commands that take materials one by one."""
-    from ..core.nbrdf import load_network, is_weights_source, parse_source
+    from ..core.nbrdf import load_network
+    from ..core.sources import is_weights_source, parse_source
 
     for spec in specs:
         path, name = parse_source(spec)
@@ -130,9 +130,9 @@ def cmd_profiles(args):
 
 
 def cmd_fit(args):
-    from .analyze import collect_inputs, input_names, load_profiles
     from ..core.atomic import write_json_atomic
     from ..core.fits import fit_set
+    from .analyze import collect_inputs, input_names, load_profiles
 
     _single_materials(args.files)
     paths, problems = collect_inputs(args.files)
@@ -200,7 +200,8 @@ def _finite(text):
 def cmd_edit(args):
     from ..core.edit import EditTargets, edit
     from ..core.merl import write_merl
-    from ..core.nbrdf import parse_source, read_table
+    from ..core.nbrdf import read_table
+    from ..core.sources import parse_source
 
     _guard(args.out, args.file)
     if args.report:
