@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, correlation_curve, energy_curve, fit_mean_slope, fit_variance
 from .. import truncated
+from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, correlation_curve, energy_curve, fit_mean_slope, fit_variance
 from ..profiles import Profiles
 
 MODES = ("warp", "model")
