@@ -10,7 +10,9 @@ Each section prints under the heading of its area in BENCHMARKS.md (``AREAS``):
   trilinear Profiles: the trilinear reading through its cached operator;
   memory    Memory: peak resident memory of one material's analysis, in a fresh process;
   fits      Fits: the fits alone, and ``analyze`` over a synthetic set;
-  edit      Editing, per view;
+  rule      Editing, per view: SPEC §3's targets against real analytic families (GGX, Beckmann,
+            Phong at pairs of roughness);
+  edit      Editing, per view: every view of each edited table against its announced targets;
   preview   Preview: render time against error, both paths (addon/tools/bench_preview.py);
   measured  Measured materials: the 59 through analyze, both diffuse floors (bench_measured.py);
   artist    The artist's material and the default preview against the converged reference, the
@@ -42,6 +44,7 @@ AREAS = {
     "trilinear": "Profiles",
     "memory": "Memory",
     "fits": "Fits",
+    "rule": "Editing, per view",
     "edit": "Editing, per view",
     "preview": "Preview",
     "measured": "Measured materials",
