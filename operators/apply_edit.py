@@ -123,7 +123,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
                 )
             from ..addon.core.edit.fidelity import report
 
-            promise = json.dumps(report(res, prof), allow_nan=False)  # Export writes it beside the table
+            promise = json.dumps(report(res, prof, table), allow_nan=False)  # Export writes it beside the table
             principled = texture = None
             if shader == "principled":
                 from ..addon.core.principled import fit_principled

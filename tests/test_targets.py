@@ -100,3 +100,29 @@ def test_the_rule_predicts_a_real_family(views):
         # What is announced is what the real material fits to.
         mu, s2 = announced(vt)
         assert mu == pytest.approx(fb["mu_slope"], abs=0.01) and s2 == pytest.approx(fb["sigma2"], rel=0.02)
+
+
+@pytest.mark.slow
+def test_energy_moved_far_from_the_lobes_is_measured(sample_table, views):
+    """SPEC §3's shape rule: the share of a view's energy an edit moves beyond three target widths.
+    Scaling the specular part moves nothing (0 exactly); a broad haze added to a glossy table
+    (a constant specular floor holding a few per cent of the energy) is caught at every view."""
+    from addon.core.edit import EditTargets, edit
+    from addon.core.edit.fidelity import far_energy, measure
+    from addon.core.fits import fit_material
+    from addon.core.merl import MerlTable
+    from addon.core.profiles import compute_profiles
+
+    table = sample_table("ggx_glossy")
+    prof = compute_profiles(table, views)
+    fit = fit_material(prof)
+    dimmer = edit(table, EditTargets(strength=0.5), prof, fit)
+    assert np.all(far_energy(dimmer.table, table, dimmer.targets, prof) == 0.0)
+    assert dimmer.fidelity.far == 0.0
+    hazy = MerlTable(np.where(table.valid, table.rho + 0.02, 0.0), table.valid.copy(), None)
+    moved = far_energy(hazy, table, dimmer.targets, prof)
+    judged = np.radians(10.0) <= views
+    judged &= views <= np.radians(60.0)
+    assert moved[judged].min() > 0.01
+    fid = measure(hazy, dimmer.targets, prof, tables=(hazy, table))
+    assert fid.far > 0.01 and not fid.meets()

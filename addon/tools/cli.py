@@ -235,7 +235,7 @@ def cmd_edit(args):
         from ..core.atomic import write_json_atomic
         from ..core.edit.fidelity import report
 
-        write_json_atomic(report(res, prof), args.report, (args.file,))
+        write_json_atomic(report(res, prof, table), args.report, (args.file,))
     said = lambda v, fmt: "—" if v is None else format(v, fmt)  # noqa: E731
     if res.requested is not None:
         print(f"request   mean slope {said(res.requested[0], '+.4f')}  variance {said(res.requested[1], '.5f')}")

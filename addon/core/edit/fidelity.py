@@ -25,8 +25,16 @@ from .reach import counted_views, view_reachable
 from .targets import RGB, ViewTargets
 
 SHAPE_MAX_VIEW = math.radians(60.0)
-# SPEC §6 tolerances.
-TOLERANCES = {"energy": 0.02, "variance_median": 0.02, "variance_worst": 0.10, "mean": 0.02, "shape": 0.10}
+# SPEC §6 tolerances; "far": energy moved beyond FAR_WIDTHS target widths of a view's lobe (§3).
+TOLERANCES = {
+    "energy": 0.02,
+    "variance_median": 0.02,
+    "variance_worst": 0.10,
+    "mean": 0.02,
+    "shape": 0.10,
+    "far": 0.01,
+}
+FAR_WIDTHS = 3.0
 MAX_EXCLUDED = 0.10  # views out of reach are listed, not counted, and must stay under this share
 
 
@@ -57,6 +65,7 @@ class ChannelFidelity:
 class Fidelity:
     channels: dict  # 'r', 'g', 'b' -> ChannelFidelity
     profiles: Profiles
+    far: float = float("nan")  # worst judged view's energy moved far from its lobe (``far_energy``)
 
     def worst(self, figure: str) -> float:
         vals = [getattr(c, figure) for c in self.channels.values()]
@@ -65,7 +74,11 @@ class Fidelity:
 
     def meets(self, tol=TOLERANCES) -> bool:
         """Every channel meets every figure, and out-of-reach views are under 10 % (SPEC §6)."""
-        return all(c.meets(tol) for c in self.channels.values()) and not self.excluded_fraction > MAX_EXCLUDED
+        return (
+            all(c.meets(tol) for c in self.channels.values())
+            and not self.excluded_fraction > MAX_EXCLUDED
+            and not self.far > tol["far"]
+        )
 
     @property
     def excluded_fraction(self) -> float:
@@ -74,6 +87,7 @@ class Fidelity:
 
     def summary(self) -> dict:
         out = {f: self.worst(f) for f in FIGURES}
+        out["far"] = self.far
         out["excluded"] = self.excluded_fraction
         out["meets"] = self.meets()
         return out
@@ -93,7 +107,7 @@ def summary_from_json(text: str):
         return None
     try:
         d = json.loads(text)
-        out = {k: float("nan") if d[k] is None else float(d[k]) for k in FIGURES + ("excluded",)}
+        out = {k: float("nan") if d.get(k) is None else float(d[k]) for k in FIGURES + ("far", "excluded")}
         out["meets"] = bool(d["meets"])
     except (ValueError, TypeError, KeyError):
         return None
@@ -141,11 +155,73 @@ def out_of_reach(targets: ViewTargets, original: Profiles):
     return counted_views(theta, targets.alpha), reachable
 
 
-def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) -> Fidelity:
+_FAR_GEOMETRY: dict = {}
+_FAR_SOURCE: dict = {}
+
+
+def _far_geometry(op):
+    """Per (view, cell) pair of the operator: view index, centroid (x, phi) and weight, as
+    float32 arrays kept for the operator's lifetime (the far-energy check reads them per edit)."""
+    if _FAR_GEOMETRY.get("op") is not op:
+        offsets = np.asarray(op.offsets)
+        _FAR_GEOMETRY.clear()
+        _FAR_GEOMETRY.update(
+            op=op,
+            view=np.repeat(np.arange(len(offsets) - 1, dtype=np.int32), np.diff(offsets)),
+            x=np.ascontiguousarray(op.centroid[:, 0], dtype=np.float32),
+            phi2=np.ascontiguousarray(op.centroid[:, 1], dtype=np.float32) ** 2,
+            w0=np.ascontiguousarray(op.weights[:, 0], dtype=np.float32),
+            cells=np.ascontiguousarray(op.cells, dtype=np.int32),
+        )
+    return _FAR_GEOMETRY
+
+
+def far_energy(edited, source, targets: ViewTargets, original: Profiles) -> np.ndarray:
+    """(V,) per view, the share of the edited slice's energy (average channel's specular part)
+    lying more than FAR_WIDTHS target widths from the target lobe, less the share the source
+    slice had beyond as many of its own measured widths: energy the edit moved far from the lobe
+    (SPEC §3's shape rule). Each cell part's centroid (the operator's) places it; the width is
+    the average channel's average variance (target, or measured for the source)."""
+    from ..integrate import get_operator
+    from ..profiles import specular_part
+
+    theta = np.asarray(targets.theta_o, float)
+    op = get_operator(theta)
+    g = _far_geometry(op)
+    kd = original.kd if original.split else np.zeros(3)
+    cells = g["cells"]
+    p = original["avg"]
+    measured_var = 0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float))
+
+    def share(table, mean, var):
+        values = specular_part(table, kd, original.split, dtype=np.float32)[1][cells] * g["w0"]
+        centre = (np.nan_to_num(mean) + theta).astype(np.float32)[g["view"]]
+        limit = (FAR_WIDTHS**2 * np.maximum(np.nan_to_num(var, nan=1.0), 1e-12)).astype(np.float32)[g["view"]]
+        far = (g["x"] - centre) ** 2 + g["phi2"] > limit
+        n = len(theta)
+        total = np.bincount(g["view"], weights=values, minlength=n)
+        beyond = np.bincount(g["view"], weights=np.where(far, values, 0.0), minlength=n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(total > 0, beyond / total, 0.0)
+
+    # The source's own share depends on the source alone: kept (one entry, holding the objects
+    # themselves, so an identity cannot be reused by another table) for the next edit of it.
+    kept = _FAR_SOURCE.get("key")
+    if kept is not None and kept[0] is source and kept[1] is original:
+        before = _FAR_SOURCE["before"]
+    else:
+        before = share(source, np.asarray(p["mu_theta"], float), measured_var)
+        _FAR_SOURCE.update(key=(source, original), before=before)
+    return np.maximum(share(edited, targets.avg_mean, targets.avg_var) - before, 0.0)
+
+
+def measure(edited, targets: ViewTargets, original: Profiles, reachable=None, tables=None) -> Fidelity:
     """Per-view fidelity of ``edited`` (a MerlTable or its Profiles, measured with the original's kd).
 
     ``original`` gives the measured means and variances the reach test compares against;
-    ``reachable`` (V, 3) overrides the reach test."""
+    ``reachable`` (V, 3) overrides the reach test. With ``tables`` (the edited table, the table
+    it was made from), the energy moved far from each judged view's lobe is measured too
+    (``far_energy``)."""
     if isinstance(edited, Profiles):
         prof = edited
     else:
@@ -190,7 +266,10 @@ def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) ->
         vm = float(np.median(e_var[u, i])) if u.any() else float("nan")
         excluded = [round(float(d), 1) for d in np.degrees(theta[counted[:, i] & ~reachable[:, i]])]
         channels[ch] = ChannelFidelity(ch, int(u.sum()), en, vm, vw, mn, sh, excluded, where)
-    return Fidelity(channels, prof)
+    far = float("nan")
+    if tables is not None and use.any():
+        far = float(far_energy(tables[0], tables[1], targets, original)[use.any(axis=1)].max())
+    return Fidelity(channels, prof, far)
 
 
 def _clean(a):
@@ -222,7 +301,7 @@ def _target_shape(vt: ViewTargets, original: Profiles):
     return (rep(skew), skew), (rep(kurt), kurt)
 
 
-def report(result, original: Profiles) -> dict:
+def report(result, original: Profiles, source=None) -> dict:
     """The promise and what the written table re-measures to, per view (SPEC §3, ``edit --report``
     and Export): anyone can check an edit without the extension. Angles in radians; ``variance``
     is (Sigma_tt + Sigma_pp) / 2, ``skewness``/``kurtosis`` the theta axis's standardized
@@ -266,6 +345,7 @@ def report(result, original: Profiles) -> dict:
                 ("kurtosis", lambda ch: a("kurt_40", ch)),
             )
         },
+        "far": None if source is None else _clean(far_energy(result.table, source, vt, original)),
         "figures": None if fid is None else {k: (v if isinstance(v, bool) else num(v)) for k, v in fid.items()},
         # A clamp back to the fit changed nothing: that is never a met edit (SPEC §3).
         "meets": bool(fid is not None and fid["meets"] and not result.nothing_to_do),

@@ -257,6 +257,7 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **
     achieved_mu = achieved_s2 = None
     new_prof = fid = None
     timings = extra.pop("timings", {})
+    source = extra.pop("source", None)  # the table edited: for the energy moved far from the lobes
     if remeasure:
         t0 = time.perf_counter()
         new_prof = compute_profiles(out, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split)
@@ -267,7 +268,7 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **
         if miss:
             warnings.append(miss)
         if vt is not None:
-            fid = measure(new_prof, vt, prof)
+            fid = measure(new_prof, vt, prof, tables=None if source is None else (out, source))
             note = _energy_note(new_prof, vt)
             if note:
                 warnings.append(note)
@@ -357,7 +358,7 @@ def edit(
     t0 = time.perf_counter()
     plan = announce(prof, fit, targets, region)
     (mu_t, s2_t), vt, warnings = plan.point, plan.targets, plan.warnings
-    said = {"targets": vt, "announced": plan.announced, "requested": plan.requested}
+    said = {"targets": vt, "announced": plan.announced, "requested": plan.requested, "source": table}
     if targets.is_identity() or plan.nothing_to_do:
         if plan.nothing_to_do:
             warnings.append("nothing to do: the request was clamped back to the material's own fit")
