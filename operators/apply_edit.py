@@ -13,23 +13,28 @@ from .common import analysed_material
 
 
 def resolve_artist_shader(context, choice):
-    """'principled', 'osl' or None for the artist's material, from the panel's choice."""
+    """'approx', 'lobes', 'principled', 'osl' or None for the artist's material, from the panel's
+    choice. Without OSL the default ('approx') fits both approximations and installs the one
+    closer to the edited table: on the measured set that is the lobe mixture almost always, on
+    the analytic GGX samples the Principled BSDF (issue 28's measurements)."""
     from ..addon.blender.preview.osl import osl_available
 
     if choice == "NONE":
         return None
     if choice == "PRINCIPLED":
         return "principled"
+    if choice == "LOBES":
+        return "lobes"
     ok = osl_available()[0]
     if choice == "OSL":
-        return "osl" if ok else "principled"  # a .blend made where OSL was: the approximation here
+        return "osl" if ok else "approx"  # a .blend made where OSL was: the approximation here
     scene = context.scene
     osl_scene = (
         scene is not None
         and scene.render.engine == "CYCLES"
         and bool(getattr(getattr(scene, "cycles", None), "shading_system", False))
     )
-    return "osl" if ok and osl_scene else "principled"
+    return "osl" if ok and osl_scene else "approx"
 
 
 def edits_folder():
@@ -66,6 +71,9 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         scale = state.scale_to_one
         floor = state.floor
         shader = resolve_artist_shader(context, state.artist_shader)
+        from ..addon.core.lobes import shadowing_for
+
+        shadowing = shadowing_for(bpy.app.version)  # the Smith term this Blender's Cycles uses
         # Content-addressed output: the same file and sliders give the same name, and an
         # edit never overwrites another material's table (or the input).
         st = os.stat(source)
@@ -121,10 +129,16 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
                     res.table, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split
                 )
             principled = texture = None
-            if shader == "principled":
+            if shader in ("lobes", "approx"):
+                from ..addon.core.lobes import fit_lobes
+
+                principled = fit_lobes(res.table, shadowing=shadowing)
+            if shader in ("principled", "approx"):
                 from ..addon.core.principled import fit_principled
 
-                principled = fit_principled(res.table)
+                single = fit_principled(res.table)
+                if principled is None or single.error < principled.error:
+                    principled = single
             elif shader == "osl":
                 from ..addon.blender.preview.osl import table_texture_pixels
 
@@ -170,7 +184,17 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
 
         live.show_applied(mat, out)
         note = ""
-        if principled is not None:
+        from ..addon.core.lobes import LobeFit
+
+        if isinstance(principled, LobeFit):
+            state.lobes_data = json.dumps(principled.as_dict())
+            artist.apply_lobes(mat, principled, state.texture_storage)
+            state.artist_shader_used = "lobes"
+            note = (
+                f"; '{mat.name}' now renders {principled.n_lobes} GGX lobes and a diffuse lobe fitted to the "
+                f"edited table (approx., error {100 * principled.error:.1f} %)"
+            )
+        elif principled is not None:
             state.principled_data = json.dumps(principled.as_dict())
             artist.apply_principled(mat, principled)
             state.artist_shader_used = "principled"

@@ -302,3 +302,58 @@ def test_osl_table_texture_next_to_the_blend_moves_with_it(artist):
         if n.bl_idname == "ShaderNodeScript"
     )
     assert os.path.samefile(script.inputs["Table"].default_value, moved / "brdf_moments" / written[0].name)
+
+
+def test_the_fitted_lobes_render_the_edit_and_keep_their_lookup_in_the_blend(artist):
+    """The lobe mixture (no OSL needed): plain nodes reading a packed lookup image; under a
+    constant sky a pixel is the directional albedo of its view, which the fit meets per view;
+    save, delete the lookup's file, reopen: the same pixels (same seed)."""
+    from addon.core.render import Environment, TableBRDF, render_reference, relative_rmse
+    from addon.core.merl import read_merl
+
+    bpy, mat, scene, layout, tmp = artist
+    before_tree = _tree(mat)
+    before = _render(bpy, scene, tmp / "before.exr")
+    state = mat.brdf_moments
+    state.artist_shader = "LOBES"
+    state.strength = 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    assert state.artist_shader_used == "lobes"
+    fit = state.lobes_fit()
+    node = mat.node_tree.nodes["BRDF Moments edit"]
+    assert "GGX lobes" in node.label and f"{100 * fit.error:.1f} %" in node.label
+    group = node.node_tree
+    kinds = [n.bl_idname for n in group.nodes]
+    assert "ShaderNodeScript" not in kinds and "ShaderNodeBsdfPrincipled" not in kinds
+    glossy = [n for n in group.nodes if n.bl_idname in ("ShaderNodeBsdfAnisotropic", "ShaderNodeBsdfGlossy")]
+    assert sorted(round(n.inputs["Roughness"].default_value, 5) for n in glossy) == [round(r, 5) for r in fit.roughness]
+    assert all(n.distribution == "GGX" for n in glossy)
+    img = bpy.data.images["BRDFM lookup: Artist"]
+    assert img.packed_file is not None
+    assert {n.image.name for n in group.nodes if n.bl_idname == "ShaderNodeTexImage"} == {img.name}
+    # the image holds the fit's colours (the file is half or full float: 1e-3 relative)
+    px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
+    img.pixels.foreach_get(px)
+    px = px.reshape(img.size[1], img.size[0], 4)[..., :3]
+    np.testing.assert_allclose(px, fit.lookup_pixels(), rtol=2e-3, atol=1e-5)
+    after = _render(bpy, scene, tmp / "after.exr")
+    mask = layout.interior_mask()
+    sky = Environment.constant((0.5, 0.5, 0.5))
+    ref = render_reference(layout, [TableBRDF(read_merl(state.edited_path))], sky, spp=2048, seed=5)
+    err_after = relative_rmse(after, ref, mask)
+    err_before = relative_rmse(before, ref, mask)
+    assert err_after < 0.05 < err_before, (err_after, err_before, fit.albedo_error)
+    # save, lose the lookup's file, reopen: the packed image renders the same
+    path = str(tmp / "lobes.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    loaded = bpy.path.abspath(img.filepath)
+    if os.path.isfile(loaded):
+        os.remove(loaded)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    mat = bpy.data.materials["Artist"]
+    assert mat.brdf_moments.lobes_fit().error == pytest.approx(fit.error)
+    again = _render(bpy, bpy.context.scene, tmp / "again.exr")
+    np.testing.assert_array_equal(again, after)
+    # Restore: the artist's tree exactly as it was
+    assert bpy.ops.brdf_moments.restore_material(material="Artist") == {"FINISHED"}
+    assert _tree(mat) == before_tree

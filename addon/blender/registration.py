@@ -66,6 +66,7 @@ PRELOAD = (
     "..core.fits",
     "..core.merl",
     "..core.nbrdf",
+    "..core.lobes",
     "..core.principled",
     "..core.render",
     ".images",
