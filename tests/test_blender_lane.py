@@ -127,8 +127,8 @@ def test_analyse_and_reset_run_in_blender_34(lane_run):
 
 
 def test_apply_edits_the_material_itself_in_blender_34(lane_run):
-    """No OSL in Debian's 3.4: Apply put a Principled BSDF fitted to the edited table into the
-    demo's material, labelled as an approximation; Restore took it out; the plot survived a
+    """No OSL in Debian's 3.4: Apply put the closer approximation of the edited table into the
+    demo's material (on the demo's analytic GGX, the Principled BSDF), labelled as such; Restore took it out; the plot survived a
     save and reopen."""
     res, out, _ = lane_run
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
@@ -140,4 +140,16 @@ def test_apply_edits_the_material_itself_in_blender_34(lane_run):
     # the fit is rougher (measured 0.347; sqrt(1.5) x the width would be 0.35)
     assert art["principled"]["roughness"] > 0.33 and 0.0 < art["principled"]["error"] < 1.0
     assert "BRDF Moments edit" not in art["after_restore"]
+    # The fitted lobes, chosen explicitly, build in 3.4 too: Diffuse and single-scattering GGX
+    # Glossy nodes reading a packed lookup, fitted with 3.4's separable Smith term
+    lobes = art["lobes"]
+    assert lobes["ran"] == ["FINISHED"] and lobes["used"] == "lobes" and lobes["linked"]
+    assert "GGX lobes" in lobes["label"] and lobes["packed"]
+    fit = lobes["fit"]
+    assert fit["shadowing"] == "separable"
+    assert lobes["distributions"] == [["ShaderNodeBsdfGlossy", "GGX"]] * len(fit["roughness"])
+    assert lobes["group"].count("ShaderNodeTexImage") == len(fit["roughness"]) + 1
+    assert "ShaderNodeBsdfDiffuse" in lobes["group"] and "ShaderNodeLayerWeight" in lobes["group"]
+    assert 0.0 < fit["error"] < 1.0 and fit["albedo_error"] < 0.05
+    assert lobes["restore"] == ["FINISHED"] and "BRDF Moments edit" not in lobes["after_restore"]
     assert ops["reopened"]["plot"] and ops["reopened"]["plot_drawn"] > 0.01

@@ -98,10 +98,12 @@ def fill_principled(group, fit):
 
 
 def _glossy_node(group):
-    # Blender 4.0 merged Glossy into the anisotropic node (same idname for both since)
-    kind = "ShaderNodeBsdfAnisotropic" if hasattr(bpy.types, "ShaderNodeBsdfAnisotropic") else "ShaderNodeBsdfGlossy"
+    # Blender 4.0 merged Glossy into the anisotropic node's idname; 3.x has both (and there the
+    # anisotropic one starts at anisotropy 0.5): Glossy itself
+    kind = "ShaderNodeBsdfAnisotropic" if bpy.app.version >= (4, 0, 0) else "ShaderNodeBsdfGlossy"
     node = group.nodes.new(kind)
     node.distribution = "GGX"  # single scattering: the model core.lobes fits
+    _set_input(node, ("Anisotropy",), 0.0)  # isotropic, as fitted
     return node
 
 

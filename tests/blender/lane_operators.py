@@ -15,7 +15,7 @@ argv = script_args()
 out = argv[argv.index("--out") + 1]
 mat = next(m for m in bpy.data.materials if m.brdf_moments.analysed)
 state = mat.brdf_moments
-# Apply put the edit into the material itself (no OSL here: the Principled approximation)
+# Apply put the edit into the material itself (no OSL here: the closer of the two approximations)
 group_node = mat.node_tree.nodes.get("BRDF Moments edit")
 artist = {
     "used": state.artist_shader_used,
@@ -26,6 +26,28 @@ artist = {
 }
 ran_restore = sorted(bpy.ops.brdf_moments.restore_material(material=mat.name))
 artist["after_restore"] = sorted(n.name for n in mat.node_tree.nodes)
+# the other approximation, chosen explicitly: the fitted lobes (plain nodes and a packed lookup)
+state.artist_shader = "LOBES"
+lobes_ran = sorted(bpy.ops.brdf_moments.apply_edit(material=mat.name))
+group_node = mat.node_tree.nodes.get("BRDF Moments edit")
+lookup = bpy.data.images.get(f"BRDFM lookup: {mat.name}")
+artist["lobes"] = {
+    "ran": lobes_ran,
+    "used": state.artist_shader_used,
+    "label": group_node.label if group_node else "",
+    "group": sorted(n.bl_idname for n in group_node.node_tree.nodes) if group_node else [],
+    "distributions": sorted(
+        [n.bl_idname, n.distribution] for n in group_node.node_tree.nodes if hasattr(n, "distribution")
+    )
+    if group_node
+    else [],
+    "linked": bool(group_node and group_node.outputs[0].is_linked),
+    "fit": json.loads(state.lobes_data) if state.lobes_data else None,
+    "packed": bool(lookup is not None and lookup.packed_file is not None),
+}
+artist["lobes"]["restore"] = sorted(bpy.ops.brdf_moments.restore_material(material=mat.name))
+artist["lobes"]["after_restore"] = sorted(n.name for n in mat.node_tree.nodes)
+state.artist_shader = "AUTO"
 before = {"mu_slope": state.fit_mu_slope, "sigma2": state.fit_sigma2}
 edited = {"sigma2": state.sigma2, "strength": state.strength}
 state.fit_mu_slope = state.fit_sigma2 = 0.0  # so that only a real re-analysis restores them
