@@ -330,6 +330,16 @@ def test_the_fitted_lobes_render_the_edit_and_keep_their_lookup_in_the_blend(art
     assert all(n.distribution == "GGX" for n in glossy)
     img = bpy.data.images["BRDFM lookup: Artist"]
     assert img.packed_file is not None
+    # the panel states what was installed and its error
+    from importlib import import_module
+
+    from tests.test_operators import _Recorder
+
+    log = []
+    import_module("bl_ext.bmtest.brdf_moments.addon.blender.panel").draw_material(_Recorder(bpy, log), mat)
+    whole = " ".join(entry[2].get("text", "") for entry in log if entry[0] == "label")
+    assert f"{fit.n_lobes} GGX lobes and a diffuse lobe fitted to the edited table" in whole
+    assert f"BRDF error {100 * fit.error:.1f} %" in whole and f"albedo within {100 * fit.albedo_error:.1f} %" in whole
     assert {n.image.name for n in group.nodes if n.bl_idname == "ShaderNodeTexImage"} == {img.name}
     # the image holds the fit's colours (the file is half or full float: 1e-3 relative)
     px = np.empty(img.size[0] * img.size[1] * 4, np.float32)

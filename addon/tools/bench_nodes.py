@@ -84,11 +84,107 @@ def bench_nodes(names, principled=True, out=print):
 def main(argv):
     import samples
 
+    if "--render" in argv:
+        names = [a for a in argv if not a.startswith("--")]
+        bench_nodes_render(eevee="--eevee" in argv, names=names or RENDER_NAMES, demo=not names)
+        return
     quick = "--quick" in argv
     names = [a for a in argv if not a.startswith("--")]
     if not names:
         names = list(QUICK) if quick else samples.measured_names()
     bench_nodes(names, principled="--no-principled" not in argv)
+
+
+RENDER_NAMES = QUICK  # five measured materials (as measured), and the demo's edit below
+RENDER_SIZE = 128
+REF_SAMPLES = 512  # the baked reference: 4x Build Preview's 128+128 per texel
+
+
+def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=print):
+    """The artist's sphere rendered with the fitted lobes (Cycles, GPU-compatible nodes, on the
+    CPU here) against the baked reference of the same table under the same HDRI (`studio`):
+    per-pixel relative RMSE over the sphere's interior. Cycles' own noise is estimated from two
+    seeds. Needs the bpy module (python -m addon.tools.bench_nodes --render)."""
+    import samples
+
+    from ..blender import material as artist
+    from ..blender.preview import render_still
+    from ..blender.preview import scene as sc
+    from ..core.edit import EditTargets, edit
+    from ..core.fits import fit_material
+    from ..core.lobes import fit_lobes, shadowing_for
+    from ..core.merl import read_merl
+    from ..core.profiles import compute_profiles
+    from ..core.render import TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
+    from ..wheel import import_bpy
+    from .bench_preview import _environment, _read_exr
+
+    bpy = import_bpy()
+    env, env_path = _environment(bpy)
+    layout = sphere_layout(RENDER_SIZE, RENDER_SIZE, 1)
+    d, mask = layout.diameter, layout.interior_mask()
+    tmp = "/tmp/brdfm-bench-nodes.exr"
+    cases = [(name, "as measured", read_merl(samples.sample_path(name))) for name in names]
+    if demo:
+        glossy = read_merl(samples.sample_path("ggx_glossy"))
+        prof = compute_profiles(glossy)
+        fit = fit_material(prof)
+        sliders = EditTargets(sigma2=min(fit["sigma2"] * 1.5, 0.8), strength=0.8)  # samples/demo.py's
+        cases.append(("ggx_glossy", "the demo's edit (σ̃² ×1.5, strength 0.8)", edit(glossy, sliders, prof, fit).table))
+    engines = [("CYCLES", "Cycles (CPU)")]
+    if eevee:
+        engines.append(("BLENDER_EEVEE_NEXT" if bpy.app.version < (5, 0, 0) else "BLENDER_EEVEE", "EEVEE"))
+    out(
+        "| material | edit | engine | lobes error (stated) | rendered rel. RMSE per pixel (RMSE/RMS; median pixel) | its noise | render time |"
+    )
+    out("|---|---|---|---|---|---|---|")
+    for name, label, table in cases:
+        t0 = time.perf_counter()
+        tprof = compute_profiles(table)
+        rgb, cov = bake_sphere(TableBRDF(table, tprof), env, d, REF_SAMPLES, 0)
+        ref = layout.compose([np.dstack([rgb * cov[..., None], cov])])
+        t_ref = time.perf_counter() - t0
+        lf = fit_lobes(table, shadowing=shadowing_for(bpy.app.version))
+        for engine, what in engines:
+            bpy.ops.wm.read_homefile(use_empty=True)
+            scene = bpy.context.scene
+            sc.configure_render(scene, layout, "baked", spp)
+            scene.cycles.max_bounces = scene.cycles.diffuse_bounces = scene.cycles.glossy_bounces = 1
+            sc.ensure_camera(scene, layout)
+            sc.ensure_world(scene, env_path, path="osl")
+            (obj,) = sc.ensure_spheres(scene, layout)
+            mat = bpy.data.materials.new("bench lobes")
+            artist.apply_lobes(mat, lf)
+            obj.data.materials.clear()
+            obj.data.materials.append(mat)
+            try:
+                scene.render.engine = engine
+            except TypeError as exc:
+                out(f"| {name} | {label} | {what} | | not available: {exc} | | |")
+                continue
+            imgs, took = [], 0.0
+            try:
+                for seed in (0, 1):
+                    scene.cycles.seed = seed
+                    t0 = time.perf_counter()
+                    render_still(scene, tmp, quiet=True)
+                    took = time.perf_counter() - t0
+                    imgs.append(_read_exr(bpy, tmp))
+            except RuntimeError as exc:
+                out(f"| {name} | {label} | {what} | | failed: {str(exc).splitlines()[0]} | | |")
+                continue
+            img = 0.5 * (imgs[0] + imgs[1])
+            noise = 0.5 * relative_rmse(imgs[0], imgs[1], mask)
+            e = relative_rmse(img, ref, mask)
+            e2 = normalized_rmse(img, ref, mask)
+            a, r = img[mask][:, :3], ref[mask][:, :3]
+            med = float(np.median(np.abs(a - r) / np.maximum(r, 1e-3 * float(np.mean(r)))))
+            np.savez(f"/tmp/brdfm-bench-nodes-{name.replace('/', '-')}-{engine}.npz", img=img, ref=ref, mask=mask)
+            out(
+                f"| {name} | {label} | {what}, {spp}x2 spp | {lf.error:.1%} / albedo {lf.albedo_error:.1%} | "
+                f"**{e:.2%}** ({e2:.2%}; median pixel {med:.1%}) | {noise:.2%} | {took:.1f} s (reference bake {t_ref:.0f} s) |"
+            )
+            sys.stdout.flush()
 
 
 if __name__ == "__main__":
