@@ -6,6 +6,7 @@ each fit states them), and the lobe fit's time. Prints a markdown table and a su
 
 from __future__ import annotations
 
+import itertools
 import sys
 import time
 
@@ -113,6 +114,7 @@ def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=
     from ..core.edit import EditTargets, edit
     from ..core.fits import fit_material
     from ..core.lobes import fit_lobes, shadowing_for
+    from ..core.principled import fit_principled
     from ..core.merl import read_merl
     from ..core.profiles import compute_profiles
     from ..core.render import TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
@@ -133,9 +135,10 @@ def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=
         cases.append(("ggx_glossy", "the demo's edit (σ̃² ×1.5, strength 0.8)", edit(glossy, sliders, prof, fit).table))
     engines = [("CYCLES", "Cycles (CPU)")]
     if eevee:
-        engines.append(("BLENDER_EEVEE_NEXT" if bpy.app.version < (5, 0, 0) else "BLENDER_EEVEE", "EEVEE"))
+        next_ = (4, 2, 0) <= bpy.app.version < (5, 0, 0)  # EEVEE Next's engine name in 4.2-4.5
+        engines.append(("BLENDER_EEVEE_NEXT" if next_ else "BLENDER_EEVEE", "EEVEE"))
     out(
-        "| material | edit | engine | lobes error (stated) | rendered rel. RMSE per pixel (RMSE/RMS; median pixel) | its noise | render time |"
+        "| material | edit | what renders | its stated error | rendered rel. RMSE per pixel (RMSE/RMS; median pixel) | its noise | render time |"
     )
     out("|---|---|---|---|---|---|---|")
     for name, label, table in cases:
@@ -145,7 +148,8 @@ def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=
         ref = layout.compose([np.dstack([rgb * cov[..., None], cov])])
         t_ref = time.perf_counter() - t0
         lf = fit_lobes(table, shadowing=shadowing_for(bpy.app.version))
-        for engine, what in engines:
+        pf = fit_principled(table)
+        for (engine, what), (kind, rep) in itertools.product(engines, (("lobes", lf), ("Principled", pf))):
             bpy.ops.wm.read_homefile(use_empty=True)
             scene = bpy.context.scene
             sc.configure_render(scene, layout, "baked", spp)
@@ -153,12 +157,17 @@ def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=
             sc.ensure_camera(scene, layout)
             sc.ensure_world(scene, env_path, path="osl")
             (obj,) = sc.ensure_spheres(scene, layout)
-            mat = bpy.data.materials.new("bench lobes")
-            artist.apply_lobes(mat, lf)
+            mat = bpy.data.materials.new("bench artist")
+            if kind == "lobes":
+                artist.apply_lobes(mat, rep)
+            else:
+                artist.apply_principled(mat, rep)
             obj.data.materials.clear()
             obj.data.materials.append(mat)
             try:
                 scene.render.engine = engine
+                if engine != "CYCLES":
+                    scene.eevee.taa_render_samples = spp
             except TypeError as exc:
                 out(f"| {name} | {label} | {what} | | not available: {exc} | | |")
                 continue
@@ -179,9 +188,9 @@ def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=
             e2 = normalized_rmse(img, ref, mask)
             a, r = img[mask][:, :3], ref[mask][:, :3]
             med = float(np.median(np.abs(a - r) / np.maximum(r, 1e-3 * float(np.mean(r)))))
-            np.savez(f"/tmp/brdfm-bench-nodes-{name.replace('/', '-')}-{engine}.npz", img=img, ref=ref, mask=mask)
             out(
-                f"| {name} | {label} | {what}, {spp}x2 spp | {lf.error:.1%} / albedo {lf.albedo_error:.1%} | "
+                f"| {name} | {label} | {kind}: {what} {bpy.app.version_string}, {spp}x2 spp | "
+                f"{rep.error:.1%} / albedo {rep.albedo_error:.1%} | "
                 f"**{e:.2%}** ({e2:.2%}; median pixel {med:.1%}) | {noise:.2%} | {took:.1f} s (reference bake {t_ref:.0f} s) |"
             )
             sys.stdout.flush()
