@@ -212,7 +212,8 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
             (
                 "AUTO",
                 "Auto",
-                "OSL tabulated where the scene renders with Cycles OSL, else the closer of the two approximations",
+                "OSL tabulated where the scene renders with Cycles OSL, else the fitted lobes (or the Principled "
+                "approximation where it is closer in both BRDF and albedo error)",
             ),
             (
                 "LOBES",
