@@ -373,7 +373,7 @@ def test_the_glossy_node_renders_the_lobe_the_fit_models(fresh):
     """One GGX Glossy node as the lobes group builds it (colour 1, roughness 0.6) on a sphere under
     a constant white sky, orthographic: a pixel is the lobe's directional albedo at cos(theta_o) =
     n_z. Cycles in 4.x renders the height-correlated Smith term the fit uses for it (the separable
-    one, Blender 3.4's, is 1-2.5 % darker toward grazing; measured in 3.4 by bench-28's script)."""
+    one, which Blender 3.4 renders, is 1-2.5 % darker toward grazing)."""
     import math
     import sys
 

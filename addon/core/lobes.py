@@ -8,9 +8,12 @@ renders when each closure's colour comes from a small lookup indexed by the view
 
 with f_k Cycles' GGX reflection of alpha_k = roughness_k² and no Fresnel (the colour is the
 weight): D(h) G(wi, wo) / (4 cos_i cos_o). G is what the Cycles of that Blender evaluates:
-the height-correlated Smith term 1 / (1 + Lambda_i + Lambda_o) since the microfacet rewrite
-(``bsdf_G`` in intern/cycles/kernel/closure/bsdf_microfacet.h, already in 3.6 next to the
-Principled v1 Fresnel), the separable product G1(wi) G1(wo) before it (Debian's 3.4). Neither adds multiple-scattering energy (that is the "Multiscatter GGX"
+the height-correlated Smith term 1 / (1 + Lambda_i + Lambda_o) (``bsdf_G`` in
+intern/cycles/kernel/closure/bsdf_microfacet.h) in 4.5 and 5.0, the separable product
+G1(wi) G1(wo) in Debian's 3.4: both checked by rendering a Glossy sphere under a white sky
+(tests/test_artist_material.py for 4.5). The switch came with Cycles' microfacet rewrite, whose
+source already has it beside 3.x's Principled v1 Fresnel; ``shadowing_for`` puts it at 3.6
+(3.5 and 3.6 themselves not checked). Neither adds multiple-scattering energy (that is the "Multiscatter GGX"
 distribution, which the nodes do not use).
 
 The lookup holds W at N_VIEWS view angles theta_j = (j + 1/2) 90° / N_VIEWS (texel centres of
@@ -243,7 +246,7 @@ def _greedy(vs, n_lobes, n_dict, shares):
 
 def fit_lobes(table, n_lobes=N_LOBES, shadowing="correlated", n_views=N_VIEWS, dictionary=DICTIONARY) -> LobeFit:
     """Fit the model above to a MerlTable (missing cells left out). One set of roughness values
-    serves every view (a roughness picked per view was measured too: no gain, see bench-28)."""
+    serves every view (a roughness picked per view was measured too: no gain, issue 28)."""
     if shadowing not in SHADOWING:
         raise ValueError(f"unknown shadowing {shadowing!r}")
     dictionary = tuple(dictionary)
