@@ -17,7 +17,7 @@ def resolve_artist_shader(context, choice):
     choice. Without OSL the default ('approx') fits both approximations and installs the lobes
     unless the Principled BSDF is closer to the edited table in both BRDF and albedo error: on the
     59 measured materials and their edits it never is (the single lobe misses the energy per view
-    by 40-80 % in the median), on the analytic GGX samples it is (issue 28's measurements)."""
+    by 37-84 % in the median, by edit), on the analytic GGX samples it is (issue 28's measurements)."""
     from ..addon.blender.preview.osl import osl_available
 
     if choice == "NONE":
