@@ -127,28 +127,31 @@ def test_analyse_and_reset_run_in_blender_34(lane_run):
 
 
 def test_apply_edits_the_material_itself_in_blender_34(lane_run):
-    """No OSL in Debian's 3.4: Apply (Auto) put the fitted lobes into the demo's material (the
-    Principled BSDF is closer in BRDF error on the demo's analytic GGX, but not in albedo), labelled
-    as an approximation: Diffuse and single-scattering GGX Glossy nodes reading a packed lookup,
-    fitted with 3.4's separable Smith term; Restore took it out. The Principled BSDF, chosen
-    explicitly, builds too. The plot survived a save and reopen."""
+    """No OSL in Debian's 3.4: Apply (Auto) put the Principled BSDF into the demo's material (on
+    the demo's analytic GGX edit it is closer than the lobes, albedo within 10 %), labelled as an
+    approximation; Restore took it out. The fitted lobes, chosen explicitly, build in 3.4 too:
+    Diffuse and single-scattering GGX Glossy nodes reading a packed lookup, fitted with 3.4's
+    separable Smith term. The plot survived a save and reopen."""
     res, out, _ = lane_run
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     ops = json.loads((out / "operators.json").read_text())
     art = ops["artist"]
-    assert art["used"] == "lobes" and "GGX lobes" in art["label"] and art["linked"] and art["packed"]
-    fit = art["lobes"]
-    assert fit["shadowing"] == "separable"
-    assert art["distributions"] == [["ShaderNodeBsdfGlossy", "GGX"]] * len(fit["roughness"])
-    assert art["group"].count("ShaderNodeTexImage") == len(fit["roughness"]) + 1
-    assert "ShaderNodeBsdfDiffuse" in art["group"] and "ShaderNodeLayerWeight" in art["group"]
-    assert 0.0 < fit["error"] < 1.0 and fit["albedo_error"] < 0.05
-    assert "BRDF Moments edit" not in art["after_restore"]
-    single = art["principled_run"]
-    assert single["ran"] == ["FINISHED"] and single["used"] == "principled" and single["linked"]
-    assert "Principled approx" in single["label"] and "ShaderNodeBsdfPrincipled" in single["group"]
+    assert art["used"] == "principled" and "Principled approx" in art["label"] and art["linked"]
+    assert "ShaderNodeBsdfPrincipled" in art["group"]
     # the demo widens ggx_glossy's lobe 1.5x (GGX alpha 0.1, Blender roughness sqrt(0.1) = 0.316):
     # the fit is rougher (measured 0.347; sqrt(1.5) x the width would be 0.35)
-    assert single["principled"]["roughness"] > 0.33 and 0.0 < single["principled"]["error"] < 1.0
-    assert single["restore"] == ["FINISHED"] and "BRDF Moments edit" not in single["after_restore"]
+    assert art["principled"]["roughness"] > 0.33 and 0.0 < art["principled"]["error"] < 1.0
+    assert art["principled"]["albedo_error"] <= 0.10
+    assert "BRDF Moments edit" not in art["after_restore"]
+    lobes = art["lobes_run"]
+    assert lobes["ran"] == ["FINISHED"] and lobes["used"] == "lobes" and lobes["linked"] and lobes["packed"]
+    assert "GGX lobes" in lobes["label"]
+    fit = lobes["lobes"]
+    assert fit["shadowing"] == "separable"
+    assert lobes["distributions"] == [["ShaderNodeBsdfGlossy", "GGX"]] * len(fit["roughness"])
+    assert lobes["group"].count("ShaderNodeTexImage") == len(fit["roughness"]) + 1
+    assert "ShaderNodeBsdfDiffuse" in lobes["group"] and "ShaderNodeLayerWeight" in lobes["group"]
+    # Auto kept the Principled because it is closer in BRDF error; the lobes meet the albedo
+    assert art["principled"]["error"] < fit["error"] < 1.0 and fit["albedo_error"] < 0.05
+    assert lobes["restore"] == ["FINISHED"] and "BRDF Moments edit" not in lobes["after_restore"]
     assert ops["reopened"]["plot"] and ops["reopened"]["plot_drawn"] > 0.01

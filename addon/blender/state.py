@@ -213,7 +213,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
                 "AUTO",
                 "Auto",
                 "OSL tabulated where the scene renders with Cycles OSL, else the fitted lobes (or the Principled "
-                "approximation where it is closer in both BRDF and albedo error)",
+                "approximation where its BRDF error is lower and its albedo within 10 %)",
             ),
             (
                 "LOBES",
