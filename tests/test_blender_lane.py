@@ -133,9 +133,11 @@ def test_analyse_and_reset_run_in_blender_34(lane_run):
 
 
 def test_apply_edits_the_material_itself_in_blender_34(lane_run):
-    """No OSL in Debian's 3.4: Apply put a Principled BSDF fitted to the edited table into the
-    demo's material, labelled as an approximation; Restore took it out; the plot survived a
-    save and reopen."""
+    """No OSL in Debian's 3.4: Apply (Auto) put the Principled BSDF into the demo's material (on
+    the demo's analytic GGX edit it is closer than the lobes, albedo within 10 %), labelled as an
+    approximation; Restore took it out. The fitted lobes, chosen explicitly, build in 3.4 too:
+    Diffuse and single-scattering GGX Glossy nodes reading a packed lookup, fitted with 3.4's
+    separable Smith term. The plot survived a save and reopen."""
     res, out, _ = lane_run
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     ops = json.loads((out / "operators.json").read_text())
@@ -145,5 +147,17 @@ def test_apply_edits_the_material_itself_in_blender_34(lane_run):
     # the demo widens ggx_glossy's lobe 1.5x (GGX alpha 0.1, Blender roughness sqrt(0.1) = 0.316):
     # the fit is rougher (measured 0.347; sqrt(1.5) x the width would be 0.35)
     assert art["principled"]["roughness"] > 0.33 and 0.0 < art["principled"]["error"] < 1.0
+    assert art["principled"]["albedo_error"] <= 0.10
     assert "BRDF Moments edit" not in art["after_restore"]
+    lobes = art["lobes_run"]
+    assert lobes["ran"] == ["FINISHED"] and lobes["used"] == "lobes" and lobes["linked"] and lobes["packed"]
+    assert "GGX lobes" in lobes["label"]
+    fit = lobes["lobes"]
+    assert fit["shadowing"] == "separable"
+    assert lobes["distributions"] == [["ShaderNodeBsdfGlossy", "GGX"]] * len(fit["roughness"])
+    assert lobes["group"].count("ShaderNodeTexImage") == len(fit["roughness"]) + 1
+    assert "ShaderNodeBsdfDiffuse" in lobes["group"] and "ShaderNodeLayerWeight" in lobes["group"]
+    # Auto kept the Principled because it is closer in BRDF error; the lobes meet the albedo
+    assert art["principled"]["error"] < fit["error"] < 1.0 and fit["albedo_error"] < 0.05
+    assert lobes["restore"] == ["FINISHED"] and "BRDF Moments edit" not in lobes["after_restore"]
     assert ops["reopened"]["plot"] and ops["reopened"]["plot_drawn"] > 0.01
