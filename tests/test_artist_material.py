@@ -309,8 +309,8 @@ def test_the_fitted_lobes_render_the_edit_and_keep_their_lookup_in_the_blend(art
     """The lobe mixture (no OSL needed): plain nodes reading a packed lookup image; under a
     constant sky a pixel is the directional albedo of its view, which the fit meets per view;
     save, delete the lookup's file, reopen: the same pixels (same seed)."""
-    from addon.core.render import Environment, TableBRDF, render_reference, relative_rmse
     from addon.core.merl import read_merl
+    from addon.core.render import Environment, TableBRDF, relative_rmse, render_reference
 
     bpy, mat, scene, layout, tmp = artist
     before_tree = _tree(mat)

@@ -250,8 +250,8 @@ def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=
     from ..core.edit import EditTargets, edit
     from ..core.fits import fit_material
     from ..core.lobes import fit_lobes, shadowing_for
-    from ..core.principled import fit_principled
     from ..core.merl import read_merl
+    from ..core.principled import fit_principled
     from ..core.profiles import compute_profiles
     from ..core.render import TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
     from ..wheel import import_bpy
