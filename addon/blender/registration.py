@@ -84,6 +84,7 @@ def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     state.attach()
+    panel.attach()
     if _file_loaded not in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.append(_file_loaded)
 
@@ -91,6 +92,7 @@ def register():
 def unregister():
     if _file_loaded in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(_file_loaded)
+    panel.detach()
     state.detach()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)
