@@ -31,10 +31,50 @@ AUDIT = None  # a list while the windowed lane checks the labels: one dict per t
 _PANEL = [""]  # the panel being drawn, for the audit
 
 
-def osl_supported() -> bool:
-    from .preview.osl import osl_available
+_OSL: list = []
 
-    return osl_available()[0]
+
+def osl_supported() -> bool:
+    """Whether this Blender has OSL (asked once: the question looks for a module on disk)."""
+    if not _OSL:
+        from .preview.osl import osl_available
+
+        _OSL.append(osl_available()[0])
+    return _OSL[0]
+
+
+_MEMO: dict = {}  # (what, material, its inputs) -> the answer: the panel redraws often, inputs rarely change
+
+
+def _memo(what, state, inputs, compute):
+    key = (what, state.id_data.name, inputs)
+    if key not in _MEMO:
+        if len(_MEMO) > 64:
+            _MEMO.clear()
+        _MEMO[key] = compute()
+    return _MEMO[key]
+
+
+def region_of(state):
+    """``state.region()``, parsed once per stored region and mode."""
+    return _memo("region", state, (hash(state.region_data), state.mode), state.region)
+
+
+def requested_point(state):
+    """``state.requested_point()`` (the region's clamp of the sliders), once per slider setting."""
+    inputs = (
+        hash(state.region_data),
+        hash(state.fit_data),
+        state.mode,
+        state.mu_slope,
+        state.sigma2,
+        state.lock,
+        state.correlation_a,
+        state.strength,
+        tuple(state.colour),
+        state.grazing_boost,
+    )
+    return _memo("point", state, inputs, state.requested_point)
 
 
 def _scale():
@@ -366,11 +406,11 @@ def _draw_region(layout, mat, cells):
     """What a reciprocal table of this material can show, and (before Apply) whether the
     sliders ask for more: then the point Apply will use instead."""
     state = mat.brdf_moments
-    region = state.region()
+    region = region_of(state)
     if region is None:
         return
     col = layout.column(align=True)
-    point = state.requested_point()
+    point = requested_point(state)
     s2 = point[0][1] if point else state.sigma2
     lo, hi = region.mu_range(min(max(s2, region.sigma2_min), region.sigma2_max))
     label(col, cells, "Reachable", "INFO")
@@ -404,10 +444,33 @@ def _draw_region(layout, mat, cells):
         row.operator("brdf_moments.clear_set", text="", icon="X").material = mat.name
 
 
-def draw_result(layout, mat, cells):
-    """The last Apply: what it reached, how well, the albedo, and what the material renders."""
+def _renders(mat):
+    """What the material renders since Apply: (short line, whole sentence), or None."""
     from .material import is_applied
 
+    if not is_applied(mat):
+        return None
+    state = mat.brdf_moments
+    used = state.artist_shader_used
+    shader = state.principled_fit() if used == "principled" else None
+    if shader is not None:
+        return (
+            f"Renders Principled ≈ (error {100 * shader.error:.1f} %)",
+            f"'{mat.name}' renders a Principled BSDF fitted to the edited table: an approximation, "
+            f"BRDF error {100 * shader.error:.1f} % (cosine-weighted), albedo within "
+            f"{100 * shader.albedo_error:.1f} %",
+        )
+    if used == "osl":
+        return (
+            "Renders the edited table (OSL)",
+            f"'{mat.name}' renders the edited table (OSL tabulated shader, Cycles with OSL)",
+        )
+    return "Renders an earlier edit", f"'{mat.name}' renders an earlier edit"
+
+
+def draw_result(layout, mat, cells):
+    """The last Apply, short: what it reached, whether each view meets its target, the albedo,
+    its warnings, what the material renders (the long forms are in Details)."""
     state = mat.brdf_moments
     col = layout.column(align=True)
     if state.edited_path:
@@ -416,9 +479,8 @@ def draw_result(layout, mat, cells):
         label(split, right, f"σ̃² {state.achieved_sigma2:.4g}")
         fid = state.fidelity()
         if fid is not None:
-            from ..core.edit.fidelity import describe
-
-            wrapped(col, describe(fid), cells, icon="NONE" if fid["meets"] else "INFO")
+            text = "Per-view targets met" if fid["meets"] else "Per-view targets missed (Details)"
+            wrapped(col, text, cells, icon="NONE" if fid["meets"] else "INFO")
         wrapped(
             col,
             "Largest albedo " + ", ".join(f"{v:.3f}" for v in state.max_albedo),
@@ -427,20 +489,9 @@ def draw_result(layout, mat, cells):
         )
         for warning in filter(None, state.edit_warnings.split("\n")):
             wrapped(col, warning, cells, icon="ERROR")
-    if is_applied(mat):
-        used = state.artist_shader_used
-        shader = state.principled_fit() if used == "principled" else None
-        if shader is not None:
-            text = (
-                f"'{mat.name}' renders a Principled BSDF fitted to the edited table: an approximation, "
-                f"BRDF error {100 * shader.error:.1f} % (cosine-weighted), albedo within "
-                f"{100 * shader.albedo_error:.1f} %"
-            )
-        elif used == "osl":
-            text = f"'{mat.name}' renders the edited table (OSL tabulated shader, Cycles with OSL)"
-        else:
-            text = f"'{mat.name}' renders an earlier edit"
-        wrapped(col, text, cells, icon="INFO")
+    renders = _renders(mat)
+    if renders is not None:
+        wrapped(col, renders[0], cells, icon="INFO")
         button(layout, cells, "brdf_moments.restore_material", "Restore Shader", "LOOP_BACK", material=mat.name)
 
 
@@ -499,6 +550,14 @@ def draw_details(layout, mat, cells):
     )
     for line in filter(None, state.plot_caption.split("\n")):
         wrapped(col, "Chart " + line, cells)
+    fid = state.fidelity() if state.edited_path else None
+    if fid is not None:
+        from ..core.edit.fidelity import describe
+
+        wrapped(col, describe(fid), cells)
+    renders = _renders(mat)
+    if renders is not None:
+        wrapped(col, renders[1], cells)
     if state.source_path:
         wrapped(col, state.source_path, cells, icon="FILE")
     if state.edited_path:
@@ -610,11 +669,11 @@ def _start_chart(name, kind, side, key, sig):
     state = mat.brdf_moments
     try:
         if kind == "REGION":
-            region = state.region()
+            region = region_of(state)
             if region is None:
                 _FAILED[key] = sig
                 return None
-            point = state.requested_point()
+            point = requested_point(state)
             slider, used = point if point else ((state.mu_slope, state.sigma2), None)
             corr = state.correlation_a
             points = [(m, s) for _, m, s in state.set_points()] or None
@@ -623,9 +682,15 @@ def _start_chart(name, kind, side, key, sig):
                 return plot_image.region_plot(region, slider, used, corr, side, side, points, compact=True)
 
         else:
-            prof, fit_, edited = state.profiles(), state.fit(), state.edited_profiles()
+            # Only the stored text here: decoding the profiles takes 0.1-0.2 s on this machine's
+            # loaded main thread, so it is done in the thread with the drawing.
+            raw, raw_edited, fit_ = state.profiles_data, state.edited_profiles_data, state.fit()
 
             def draw():
+                from .state import unpack_profiles
+
+                prof = unpack_profiles(raw)
+                edited = unpack_profiles(raw_edited) if raw_edited else None
                 return plot_image.profile_chart(prof, fit_, edited, kind.lower(), side)
 
     except ValueError:  # damaged stored data: the panel says so elsewhere
@@ -689,6 +754,7 @@ def detach():
     _SHOWN.clear()
     _WANTED.clear()
     _FAILED.clear()
+    _MEMO.clear()
     _DONE.clear()
     if hasattr(bpy.types.WindowManager, "brdf_moments_chart"):
         del bpy.types.WindowManager.brdf_moments_chart
