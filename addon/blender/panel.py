@@ -415,12 +415,10 @@ def _draw_region(layout, mat, cells):
     lo, hi = region.mu_range(min(max(s2, region.sigma2_min), region.sigma2_max))
     label(col, cells, "Reachable", "INFO")
     s2_range = f"{region.sigma2_min:.3g} – {region.sigma2_max:.3g}"
-    label(col, cells, fit(cells, [f"σ̃² {s2_range}", f"σ̃² {region.sigma2_min:.2g} – {region.sigma2_max:.2g}"]))
-    label(
-        col,
-        cells,
-        fit(cells, [f"μ̃ {lo:+.3f} – {hi:+.3f} at this σ̃²", f"μ̃ {lo:+.3f} – {hi:+.3f}", f"μ̃ {lo:+.2f} – {hi:+.2f}"]),
-    )
+    s2_text = fit(cells, [f"σ̃² {s2_range}", f"σ̃² {region.sigma2_min:.2g} – {region.sigma2_max:.2g}"], icon=True)
+    label(col, cells, s2_text, "BLANK1")  # under the heading's text
+    mu_texts = [f"μ̃ {lo:+.3f} – {hi:+.3f} at this σ̃²", f"μ̃ {lo:+.3f} – {hi:+.3f}", f"μ̃ {lo:+.2f} – {hi:+.2f}"]
+    label(col, cells, fit(cells, mu_texts, icon=True), "BLANK1")
     if point and point[0] != point[1]:
         (mu, s2), (mu_c, s2_c) = point
         wrapped(

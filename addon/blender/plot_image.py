@@ -267,15 +267,15 @@ def profile_chart(prof, fit=None, edited=None, kind="energy", size=200):
         )
 
     c.clip = (0, 0, size - 1, size - 1)
-    draw_text(c.px, x0, 3, title, TEXT, 1)
-    # legend, the second line: what solid, dashed and thin mean
-    lx, ly = x0, 3 + line_h
+    draw_text(c.px, 4, 3, title, TEXT, 1)
+    # legend, the second line: what solid, dashed and thin mean (from the left edge: it needs the room)
+    lx, ly = 4, 3 + line_h
     legend = [("measured", False, 2.0, TEXT)] + ([("edited", True, 2.0, TEXT)] if edited else [])
     legend.append(("fit", False, 1.0, FIT_COLOUR if kind != "energy" else TEXT))
     for label, dashed, w, colour in legend:
-        c.polyline(np.array([lx, lx + 12.0]), np.array([ly + 3.5] * 2), colour, width=w, dashed=dashed, dash=4)
-        draw_text(c.px, lx + 15, ly, label, TEXT, 1)
-        lx += 15 + text_width(label) + 9
+        c.polyline(np.array([lx, lx + 10.0]), np.array([ly + 3.5] * 2), colour, width=w, dashed=dashed, dash=3)
+        draw_text(c.px, lx + 13, ly, label, TEXT, 1)
+        lx += 13 + text_width(label) + 7
     for deg in (30, 60):
         gx = int(round(float(px(math.radians(deg), lo)[0])))
         c.px[top:bottom, gx] = GRID
@@ -370,19 +370,22 @@ def region_plot(
         decades = range(math.ceil(y_lo), math.floor(y_hi) + 1)
         left, right = max([text_width(_tick(10.0**e), s) for e in decades] or [4 * ADVANCE * s]) + 10, 8
     x0, x1 = left, width - right - 1
-    items = [("fit", FIT_COLOUR), ("sliders", SLIDER_COLOUR), ("Apply uses", CLAMP_COLOUR)]
+    items = [("fit", FIT_COLOUR), ("sliders", SLIDER_COLOUR), ("Apply" if compact else "Apply uses", CLAMP_COLOUR)]
     if correlation_a is not None and np.isfinite(correlation_a):
-        items.append((f"correlation a={correlation_a:.3g}", CORRELATION_COLOUR))
+        items.append(
+            ((f"corr. a={correlation_a:.3g}" if compact else f"correlation a={correlation_a:.3g}"), CORRELATION_COLOUR)
+        )
     if n_set:
         off = n_set - len(shown)
         items.append((f"set ({n_set}; {off} off)" if off else f"set ({n_set})", SET_COLOUR))
     # the legend's lines, [(x, label, colour)] each, wrapped at the right edge
-    legend, lx = [[]], x0
+    start = 4 if compact else x0
+    legend, lx = [[]], start
     for label, colour in items:
         w = 12 * s + text_width(label, s)
         if legend[-1] and lx + w > width - 4:
             legend.append([])
-            lx = x0
+            lx = start
         legend[-1].append((lx, label, colour))
         lx += w + (10 if compact else 16) * s
     top = max(3 * line_h + 8, 6 + (1 + len(legend)) * (line_h + 2) + 6)
@@ -408,7 +411,7 @@ def region_plot(
             c.px[row, a : b + 1, :3] = 0.55 * c.px[row, a : b + 1, :3] + 0.45 * np.asarray(REGION_FILL)
     c.clip = (0, 0, width - 1, height - 1)
     title = "reachable (μ~, σ~²)" if compact else "reachable (mean slope, variance) for this material"
-    draw_text(c.px, x0, 6, title, TEXT, s)
+    draw_text(c.px, 4 if compact else x0, 6, title, TEXT, s)
     for mu in (-1.5, -1.0, -0.5, 0.0):  # x ticks
         if x_lo <= mu <= x_hi:
             gx = int(round(float(px(mu, 1.0)[0])))
