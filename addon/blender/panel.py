@@ -227,10 +227,15 @@ def _value(owner, attr):
     return f"{getattr(owner, attr):.{getattr(rna, 'precision', 3)}f}"
 
 
+_ITEM_NAMES: dict = {}  # (type, property) -> {identifier: name}: enum items are fixed once registered
+
+
 def _item_name(owner, attr):
-    rna = owner.bl_rna.properties[attr]
-    key = getattr(owner, attr)
-    return next((i.name for i in rna.enum_items if i.identifier == key), str(key))
+    key = (type(owner).__name__, attr)
+    if key not in _ITEM_NAMES:
+        _ITEM_NAMES[key] = {i.identifier: i.name for i in owner.bl_rna.properties[attr].enum_items}
+    value = getattr(owner, attr)
+    return _ITEM_NAMES[key].get(value, str(value))
 
 
 def _split(layout, cells, factor):
@@ -753,6 +758,7 @@ def detach():
     _WANTED.clear()
     _FAILED.clear()
     _MEMO.clear()
+    _ITEM_NAMES.clear()
     _DONE.clear()
     if hasattr(bpy.types.WindowManager, "brdf_moments_chart"):
         del bpy.types.WindowManager.brdf_moments_chart
