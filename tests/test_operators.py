@@ -342,3 +342,77 @@ def test_the_reachable_region_is_stored_drawn_and_is_what_apply_clamps_to(analys
     # A damaged stored region is ignored, never a traceback in the panel.
     state.region_data = '{"warp": {"sigma2": [1, 0]}}'
     assert state.region() is None and state.requested_point() is None
+
+
+def test_the_whole_panel_fits_the_default_widths_of_this_blender(analysed):
+    """Issue 29: every text cell of the whole panel (every section open, after an Apply) fits
+    the width its cell gets, measured with blf in the UI font, at the default widths: the
+    Properties editor's region in this version's factory startup and a sidebar of 220 px (3.4)
+    or 280 px (the later sources' UI_SIDEBAR_PANEL_WIDTH). The window lane checks 3.4 on screen."""
+    from importlib import import_module
+    from types import SimpleNamespace
+
+    bpy, mat, _ = analysed
+    panel = import_module("bl_ext.bmtest.brdf_moments.addon.blender.panel")
+    mat.brdf_moments.strength = 0.8
+    assert bpy.ops.brdf_moments.apply_edit(material="Rough") == {"FINISHED"}
+    props = next(
+        r.width
+        for a in bpy.data.screens["Layout"].areas
+        if a.type == "PROPERTIES"
+        for r in a.regions
+        if r.type == "WINDOW"
+    )
+    assert 280 <= props <= 340, props  # the factory layout's Properties editor
+    unit = panel.ui_unit()
+    for kind, width in (("WINDOW", props), ("UI", 220), ("UI", 280)):
+        panel.AUDIT = []
+        try:
+            log = []
+            panel.draw_material(
+                _Recorder(bpy, log), mat, SimpleNamespace(region=SimpleNamespace(width=width, type=kind))
+            )
+            cells = list(panel.AUDIT)
+        finally:
+            panel.AUDIT = None
+        assert len(cells) > 40, len(cells)
+        content = width - 0.8 * unit - (1.8 * unit if kind == "UI" else 0)
+        assert max(c["avail"] for c in cells) == pytest.approx(content)
+        cut = []
+        for c in cells:
+            need = panel.text_width(c["text"]) + panel.PADDING[c["kind"]] * unit + (unit if c["icon"] else 0)
+            if need > c["avail"] + 0.5:
+                cut.append((c["text"], c["kind"], round(need), round(c["avail"])))
+        assert cut == [], (kind, width, cut)
+        texts = {c["text"] for c in cells}
+        assert {"Reset", "Apply", "Build Preview", "Edited Table", "Load Set…"} <= texts
+
+
+def test_the_announced_line_is_one_row_that_fits_the_sidebar(blender):
+    """The slider section's read-only line of what Apply will deliver (issue 27 fills
+    ``announced_json``): nothing while it is empty or damaged, else one label that fits a
+    sidebar of 220 px, with the numbers it was given."""
+    import json
+    from importlib import import_module
+    from types import SimpleNamespace
+
+    bpy = blender
+    panel = import_module("bl_ext.bmtest.brdf_moments.addon.blender.panel")
+    unit = panel.ui_unit()
+    narrow = panel.Cells(SimpleNamespace(region=SimpleNamespace(width=220, type="UI")))
+    for raw in ("", "not json", json.dumps({"mu_slope": "x"}), json.dumps({"sigma2": 0.1})):
+        log = []
+        panel._draw_announced(_Recorder(bpy, log), SimpleNamespace(announced_json=raw), narrow)
+        assert [e for e in log if e[0] == "label"] == [], raw
+    panel._draw_announced(_Recorder(bpy, []), SimpleNamespace(), narrow)  # no such property yet
+    for cells in (narrow, panel.Cells(None)):
+        for clamped in (False, True):
+            log = []
+            doc = {"mu_slope": -0.91234, "sigma2": 0.16129, "out_of_reach": 0.125, "clamped": clamped}
+            panel._draw_announced(_Recorder(bpy, log), SimpleNamespace(announced_json=json.dumps(doc)), cells)
+            labels = [e[2] for e in log if e[0] == "label"]
+            assert len(labels) == 1, labels
+            text, icon = labels[0]["text"], labels[0]["icon"]
+            assert icon == ("ERROR" if clamped else "FORWARD")
+            assert "-0.91" in text and "0.16" in text and "12%" in text.replace(" %", "%"), text
+            assert panel.text_width(text) + panel.PADDING["label"] * unit + unit <= cells.w + 0.5, (text, cells.w)

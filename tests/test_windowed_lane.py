@@ -369,3 +369,90 @@ def test_screenshots_show_the_window(lane):
         img = matplotlib.image.imread(os.path.join(ARTIFACTS, name))
         assert img.shape[:2] == (1080, 1920), name
         assert img[..., :3].std() > 0.02, name  # not a blank screen
+
+
+def _button_width(path):
+    """The widest run of the factory theme's button grey in a screenshot of a panel: the width
+    Blender gives a full-width button there, i.e. the panel's layout width."""
+    import matplotlib.image
+
+    img = matplotlib.image.imread(os.path.join(ARTIFACTS, os.path.basename(path)))[..., :3]
+    grey = np.all(np.abs(img - 0.33) < 0.015, axis=2)
+    best = 0
+    for row in grey:
+        edges = np.diff(np.concatenate([[0], row.astype(np.int8), [0]]))
+        starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+        if len(starts):
+            best = max(best, int((ends - starts).max()))
+    return best
+
+
+def _chart_span(path):
+    """The longest run of the charts' background colour (plot_image's BACKGROUND, 41/255) that
+    at least 3 rows of a screenshot have (a chart's rows above its title): its width as drawn."""
+    import matplotlib.image
+
+    img = np.round(matplotlib.image.imread(os.path.join(ARTIFACTS, os.path.basename(path)))[..., :3] * 255)
+    hit = np.all(img == 41, axis=2)
+    lengths = []
+    for row in hit:
+        edges = np.diff(np.concatenate([[0], row.astype(np.int8), [0]]))
+        starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+        lengths += [int(n) for n in ends - starts if n >= 64]
+    return max((n for n in set(lengths) if lengths.count(n) >= 3), default=0)
+
+
+def test_the_panel_fits_blenders_default_width(lane):
+    """Issue 29: in the 3D view's sidebar (tab BRDF Moments) and in Material Properties, at the
+    widths a fresh Blender gives them, no text the panel draws is cut. Every text cell the panel
+    drew in the window, and every cell of the whole panel (folded sections too) laid out at the
+    same widths, is measured with blf in the UI font against the width its cell gets; the
+    panel's width model is checked against the buttons in the screenshots."""
+    data, _, _, _ = lane
+    shots = data["panel_shots"]
+    assert [s["step"] for s in shots] == [
+        "start",
+        *["loaded"] * 4,
+        "sliders",
+        "applied",
+        "preview",
+        "reopened",
+    ], [s["step"] for s in shots]
+    assert {s["chart"] for s in shots if s["step"] == "loaded"} == {"ENERGY", "MEAN", "VARIANCE", "REGION"}
+    assert data["cut_control"]  # the check finds a label that does not fit
+    unit = data["ui"]["unit"]
+    for shot in shots:
+        assert shot["cut"] == [], (shot["step"], shot["chart"], shot["cut"])
+        panels = {e["panel"].split("_PT_")[0] for e in shot["drawn"]}
+        assert {"VIEW3D", "MATERIAL"} <= panels, (shot["step"], panels)
+        # Blender's default sidebar: 220 px at scale 1 (UI_SIDEBAR_PANEL_WIDTH); the lane does not widen it.
+        assert shot["sidebar_width"] <= round(220 * data["ui"]["ui_scale"]) + 1, shot["sidebar_width"]
+        assert shot["sidebar"] and shot["properties"], shot  # at least the top of each
+        if shot["step"] == "start":
+            continue  # no file yet: no full-width button to measure
+        drawn = _button_width(shot["sidebar"][0])  # the sliders and Load Set… span the sidebar's layout
+        model = shot["content_width"]["VIEW_3D"]
+        # The cells are measured against the model's width: it must not be wider than what
+        # Blender draws (then a label the audit passes could still be cut on screen) ...
+        assert model <= drawn + 2, (shot["step"], model, drawn)
+        assert model >= drawn - unit, (shot["step"], model, drawn)  # ... nor needlessly narrow
+    sections = {e["panel"] for s in shots for e in s["whole"]}
+    assert {"whole panel at the VIEW_3D width", "whole panel at the PROPERTIES width"} <= sections
+    texts = {e["text"] for s in shots for e in s["whole"]}
+    for must in ("Fit", "RMSE", "Reset", "Apply", "Build Preview", "Edited Table", "Restore Shader", "Load Set…"):
+        assert must in texts, must
+    # The charts are drawn at the size the panel shows them (not Blender's 128 px thumbnail):
+    # the layout's width less Blender's 4 px around a preview on each side.
+    import matplotlib.image
+
+    # On screen, the chart's background spans exactly that many pixels (drawn 1:1, not scaled:
+    # Blender would shrink it if the panel's width model were wider than its layout).
+    for shot in shots[1:]:
+        for kind, pages in (("VIEW_3D", shot["sidebar"]), ("PROPERTIES", shot["properties"])):
+            side = int(shot["content_width"][kind]) - 8
+            assert [side, side] in shot["chart_sizes"], (shot["step"], kind, shot["chart_sizes"])
+            assert _chart_span(pages[0]) == side, (shot["step"], kind, _chart_span(pages[0]), side)
+    for shot in shots:
+        for page in shot["sidebar"]:
+            img = matplotlib.image.imread(os.path.join(ARTIFACTS, os.path.basename(page)))
+            assert img.shape[1] == shot["sidebar_width"]

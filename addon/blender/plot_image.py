@@ -39,7 +39,7 @@ class Canvas:
                 xi, yi, a = xi[ok], yi[ok], a[ok][:, None]
                 self.px[yi, xi, :3] = self.px[yi, xi, :3] * (1 - a) + np.asarray(colour[:3]) * a
 
-    def polyline(self, x, y, colour, width=1.2, dashed=False):
+    def polyline(self, x, y, colour, width=1.2, dashed=False, dash=12):
         x, y = np.asarray(x, float), np.asarray(y, float)
         ok = np.isfinite(x) & np.isfinite(y)
         xs, ys = [], []
@@ -55,7 +55,7 @@ class Canvas:
         xs, ys = np.concatenate(xs), np.concatenate(ys)
         if dashed:
             s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(xs), np.diff(ys)))])
-            keep = (s // 12) % 2 == 0  # 12 px dashes: legible at full size
+            keep = (s // dash) % 2 == 0  # 12 px dashes: legible at full size; the panel's charts use 4
             xs, ys = xs[keep], ys[keep]
         self.dot(xs, ys, colour, radius=width / 2)
 
@@ -204,6 +204,106 @@ def profile_plot(prof, fit=None, edited=None, width=900, height=780):
     return c.px, charts
 
 
+CHART_KINDS = ("energy", "mean", "variance")
+
+
+def _short_tick(v):
+    """A tick label of at most 7 characters (the panel's charts are ~200 px wide)."""
+    if v == 0:
+        return "0"
+    text = f"{v:.2g}"
+    return text if len(text) <= 7 else f"{v:.0e}"
+
+
+def profile_chart(prof, fit=None, edited=None, kind="energy", size=200):
+    """One of the three profile charts alone, as a square RGBA float32 image of ``size`` pixels
+    (row 0 on top), drawn for the panel at the size it is shown: 5x7 text at 1:1, a short
+    title, a one-line legend, y ticks at the bottom, middle and top, and the θo axis."""
+    from .plot_font import draw_text, text_width
+
+    if kind not in CHART_KINDS:
+        raise ValueError(f"unknown chart {kind!r}")
+    size = int(size)
+    c = Canvas(size, size)
+    line_h = 9
+    theta = np.asarray(prof.theta_o, float)
+    fine = np.linspace(0.0, math.radians(89.0), 180)
+
+    def var_avg(p):
+        return 0.5 * (np.asarray(p["avg"]["sigma_tt"], float) + np.asarray(p["avg"]["sigma_pp"], float))
+
+    if kind == "energy":
+        title = "energy α (r, g, b)"
+        measured = [(prof[ch]["alpha"], CHANNEL_COLOURS[ch]) for ch in "rgb"]
+        edit_curves = [(edited[ch]["alpha"], CHANNEL_COLOURS[ch]) for ch in "rgb"] if edited else []
+        fitted = (
+            [(energy_spline(fine, fit, (fit.get("channels") or {}).get(ch)), CHANNEL_COLOURS[ch]) for ch in "rgb"]
+            if fit
+            else []
+        )
+        zero = False
+    elif kind == "mean":
+        title = "mean μθ (rad)"
+        measured = [(prof["avg"]["mu_theta"], CHANNEL_COLOURS["avg"])]
+        edit_curves = [(edited["avg"]["mu_theta"], CHANNEL_COLOURS["avg"])] if edited else []
+        fitted = [(fit["mu_slope"] * fine, FIT_COLOUR)] if fit and fit.get("mu_slope") is not None else []
+        zero = True
+    else:
+        title = "variance σ² (rad²)"
+        measured = [(var_avg(prof), CHANNEL_COLOURS["avg"])]
+        edit_curves = [(var_avg(edited), CHANNEL_COLOURS["avg"])] if edited else []
+        fitted = [(np.full_like(fine, fit["sigma2"]), FIT_COLOUR)] if fit and fit.get("sigma2") is not None else []
+        zero = True
+    lo, hi = _range([np.asarray(m, float) for m, _ in measured + edit_curves], include_zero=zero)
+    ticks = [_short_tick(v) for v in (lo, 0.5 * (lo + hi), hi)]
+    x0 = max(text_width(t) for t in ticks) + 8
+    x1 = size - 7
+    top, bottom = 2 * line_h + 8, size - 2 * line_h - 8
+
+    def px(t, v):
+        return (
+            x0 + (np.asarray(t, float) / math.radians(90.0)) * (x1 - x0),
+            bottom - (np.asarray(v, float) - lo) / (hi - lo) * (bottom - top),
+        )
+
+    c.clip = (0, 0, size - 1, size - 1)
+    draw_text(c.px, 4, 3, title, TEXT, 1)
+    # legend, the second line: what solid, dashed and thin mean (from the left edge: it needs the room)
+    lx, ly = 4, 3 + line_h
+    legend = [("measured", False, 2.0, TEXT)] + ([("edited", True, 2.0, TEXT)] if edited else [])
+    legend.append(("fit", False, 1.0, FIT_COLOUR if kind != "energy" else TEXT))
+    for label, dashed, w, colour in legend:
+        c.polyline(np.array([lx, lx + 10.0]), np.array([ly + 3.5] * 2), colour, width=w, dashed=dashed, dash=3)
+        draw_text(c.px, lx + 13, ly, label, TEXT, 1)
+        lx += 13 + text_width(label) + 7
+    for deg in (30, 60):
+        gx = int(round(float(px(math.radians(deg), lo)[0])))
+        c.px[top:bottom, gx] = GRID
+    if lo < 0.0 < hi:
+        gy = int(round(float(px(0.0, 0.0)[1])))
+        c.px[gy, x0:x1] = GRID
+    for v, label in zip((lo, 0.5 * (lo + hi), hi), ticks):
+        gy = int(round(float(px(0.0, v)[1])))
+        c.px[gy, x0 - 3 : x0] = FRAME
+        draw_text(c.px, x0 - 5 - text_width(label), min(max(gy - 3, 0), size - 7), label, TEXT, 1)
+    c.rect(x0, top, x1, bottom, FRAME)
+    for deg in (0, 30, 60, 90):
+        gx = int(round(float(px(math.radians(deg), lo)[0])))
+        c.px[bottom : bottom + 3, gx] = FRAME
+        label = f"{deg}"
+        draw_text(c.px, min(max(gx - text_width(label) // 2, 0), size - text_width(label)), bottom + 5, label, TEXT, 1)
+    axis = "θo (°)"
+    draw_text(c.px, (x0 + x1 - text_width(axis)) // 2, bottom + 6 + line_h, axis, TEXT, 1)
+    c.clip = (x0 + 1, top + 1, x1 - 1, bottom - 1)
+    for values, colour in fitted:
+        c.polyline(*px(fine, values), colour, width=1.0)
+    for values, colour in measured:
+        c.polyline(*px(theta, values), colour, width=2.0)
+    for values, colour in edit_curves:
+        c.polyline(*px(np.asarray(edited.theta_o, float), values), colour, width=2.0, dashed=True, dash=4)
+    return c.px
+
+
 REGION_FILL = (0.25, 0.42, 0.62)
 REGION_EDGE = (0.45, 0.7, 1.0)
 SLIDER_COLOUR = (1.0, 1.0, 1.0)
@@ -236,7 +336,15 @@ def _set_ranges(points, x_lo, x_hi, y_lo, y_hi):
 
 
 def region_plot(
-    region, slider=None, used=None, correlation_a=None, width=600, height=420, set_points=None, horizon=None
+    region,
+    slider=None,
+    used=None,
+    correlation_a=None,
+    width=600,
+    height=420,
+    set_points=None,
+    compact=False,
+    horizon=None,
 ):
     """The reachable region on the (mean slope, variance) plane, as RGBA float32 (row 0 on top).
 
@@ -247,7 +355,8 @@ def region_plot(
     ((mean slopes, variances), the last point the sliders'): what the table re-fits to as the
     variance request runs over its range at the sliders' mean slope, the material's own horizon
     curve (SPEC §3), with the sliders' point on it (green). The variance axis is logarithmic:
-    regions span two decades."""
+    regions span two decades. ``compact``: the panel's chart
+    (about 200 px): a short title and axis label, the legend wrapped over as many lines as it needs."""
     from ..core.fits import LAMBERT_VARIANCE, correlation_curve
     from .plot_font import ADVANCE, draw_text, text_width
 
@@ -268,8 +377,32 @@ def region_plot(
     y_lo, y_hi = math.log10(min(s2_all)) - 0.05, math.log10(max(s2_all)) + 0.05
     n_set = 0 if set_points is None else len(set_points)
     x_lo, x_hi, y_lo, y_hi, shown = _set_ranges(set_points if n_set else [], x_lo, x_hi, y_lo, y_hi)
-    left, right, top, bottom = 7 * ADVANCE * s + 10, 12, 3 * line_h + 8, height - 2 * line_h - 14
+    left, right, bottom = 7 * ADVANCE * s + 10, 12, height - 2 * line_h - 14
+    if compact:  # the y ticks' own width, not room for the longest possible one
+        decades = range(math.ceil(y_lo), math.floor(y_hi) + 1)
+        left, right = max([text_width(_tick(10.0**e), s) for e in decades] or [4 * ADVANCE * s]) + 10, 8
     x0, x1 = left, width - right - 1
+    items = [("fit", FIT_COLOUR), ("sliders", SLIDER_COLOUR), ("Apply" if compact else "Apply uses", CLAMP_COLOUR)]
+    if horizon is not None:
+        items.append(("delivers", HORIZON_COLOUR))
+    if correlation_a is not None and np.isfinite(correlation_a):
+        items.append(
+            ((f"corr. a={correlation_a:.3g}" if compact else f"correlation a={correlation_a:.3g}"), CORRELATION_COLOUR)
+        )
+    if n_set:
+        off = n_set - len(shown)
+        items.append((f"set ({n_set}; {off} off)" if off else f"set ({n_set})", SET_COLOUR))
+    # the legend's lines, [(x, label, colour)] each, wrapped at the right edge
+    start = 4 if compact else x0
+    legend, lx = [[]], start
+    for label, colour in items:
+        w = 12 * s + text_width(label, s)
+        if legend[-1] and lx + w > width - 4:
+            legend.append([])
+            lx = start
+        legend[-1].append((lx, label, colour))
+        lx += w + (10 if compact else 16) * s
+    top = max(3 * line_h + 8, 6 + (1 + len(legend)) * (line_h + 2) + 6)
 
     def px(mu, s2):
         mu, s2 = np.asarray(mu, float), np.maximum(np.asarray(s2, float), 1e-300)
@@ -291,7 +424,8 @@ def region_plot(
         if b >= a:
             c.px[row, a : b + 1, :3] = 0.55 * c.px[row, a : b + 1, :3] + 0.45 * np.asarray(REGION_FILL)
     c.clip = (0, 0, width - 1, height - 1)
-    draw_text(c.px, x0, 6, "reachable (mean slope, variance) for this material", TEXT, s)
+    title = "reachable (μ~, σ~²)" if compact else "reachable (mean slope, variance) for this material"
+    draw_text(c.px, 4 if compact else x0, 6, title, TEXT, s)
     for mu in (-1.5, -1.0, -0.5, 0.0):  # x ticks
         if x_lo <= mu <= x_hi:
             gx = int(round(float(px(mu, 1.0)[0])))
@@ -304,7 +438,7 @@ def region_plot(
         c.px[gy, x0:x1] = GRID
         label = _tick(10.0**e)
         draw_text(c.px, x0 - 6 - text_width(label, s), min(max(gy - 3 * s, 0), height - 7 * s), label, TEXT, s)
-    axis = "mean slope μ~ (x), variance σ~² (y, log)"
+    axis = "μ~ (x), σ~² (y, log)" if compact else "mean slope μ~ (x), variance σ~² (y, log)"
     draw_text(c.px, (x0 + x1 - text_width(axis, s)) // 2, bottom + 8 + line_h, axis, TEXT, s)
     c.rect(x0, top, x1, bottom, FRAME)
     c.clip = (x0 + 1, top + 1, x1 - 1, bottom - 1)
@@ -328,19 +462,11 @@ def region_plot(
         x, y = px(slider[0], slider[1])
         ang = np.linspace(0.0, 2 * math.pi, 60)
         c.dot(x + 6.0 * s * np.cos(ang), y + 6.0 * s * np.sin(ang), SLIDER_COLOUR, radius=0.8 * s)
-    # legend, on the second line
+    # the legend, from the second line
     c.clip = (0, 0, width - 1, height - 1)
-    lx, ly = x0, 6 + line_h + 4
-    items = [("fit", FIT_COLOUR), ("sliders", SLIDER_COLOUR), ("Apply uses", CLAMP_COLOUR)]
-    if horizon is not None:
-        items.append(("delivers", HORIZON_COLOUR))
-    if correlation_a is not None and np.isfinite(correlation_a):
-        items.append((f"correlation a={correlation_a:.3g}", CORRELATION_COLOUR))
-    if n_set:
-        off = n_set - len(shown)
-        items.append((f"set ({n_set}; {off} off)" if off else f"set ({n_set})", SET_COLOUR))
-    for label, colour in items:
-        c.dot(np.array([lx + 4.0 * s]), np.array([ly + line_h / 2.0]), colour, radius=3.0 * s)
-        draw_text(c.px, lx + 12 * s, ly, label, TEXT, s)
-        lx += 12 * s + text_width(label, s) + 16 * s
+    for k, line in enumerate(legend):
+        ly = 6 + (k + 1) * (line_h + 2)
+        for lx, label, colour in line:
+            c.dot(np.array([lx + 4.0 * s]), np.array([ly + line_h / 2.0]), colour, radius=3.0 * s)
+            draw_text(c.px, lx + 12 * s, ly, label, TEXT, s)
     return c.px

@@ -67,6 +67,7 @@ def register(operators):
     for cls in classes(operators):
         bpy.utils.register_class(cls)
     state.attach()
+    panel.attach()
     if _file_loaded not in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.append(_file_loaded)
 
@@ -74,6 +75,7 @@ def register(operators):
 def unregister(operators):
     if _file_loaded in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(_file_loaded)
+    panel.detach()
     state.detach()
     for cls in reversed(classes(operators)):
         bpy.utils.unregister_class(cls)

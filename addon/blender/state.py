@@ -77,7 +77,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         update=lambda self, ctx: _floor_changed(self),
         description="how kd is taken from the 45° slice; changing it asks for a new analysis",
         items=[
-            ("min", "Minimum (paper)", "the minimum over the 45° slice (paper Sec. 2.2)"),
+            ("min", "Minimum", "the minimum over the 45° slice (the paper, Sec. 2.2)"),
             (
                 "robust",
                 "Robust",

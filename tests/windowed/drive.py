@@ -35,7 +35,7 @@ import faulthandler  # noqa: E402
 _FAULTS = open(os.path.join(OUT, "faulthandler.txt"), "w")  # noqa: SIM115 - open for the whole session
 faulthandler.enable(file=_FAULTS, all_threads=True)
 
-result = {"blender": bpy.app.version_string, "steps": [], "jobs": [], "input": {}, "errors": []}
+result = {"blender": bpy.app.version_string, "steps": [], "jobs": [], "input": {}, "errors": [], "panel_shots": []}
 ticks = []  # main-loop timer ticks (time.monotonic)
 
 
@@ -230,6 +230,182 @@ class held_apply:
         self.cls.start = self.start
 
 
+# --- the panel at Blender's default width ------------------------------------------------------
+# Issue 29: the panel is checked where an artist sees it, in the 3D view's sidebar (tab "BRDF
+# Moments") and in Material Properties, at the widths a fresh Blender gives them. The panel
+# records every text cell it draws with the width that cell gets (addon/blender/panel.py,
+# AUDIT); here each text is measured with blf in the UI's font and must fit its cell. The
+# panel's width model is checked against the screenshots in tests/test_windowed_lane.py.
+
+# What a cell needs beside its text, in widget units (Blender's text margins are 0.4 unit a
+# side; an icon takes 1 unit; a drop-down's arrow 1; a checkbox's box 1).
+CELL_PADDING = {"label": 0.5, "button": 0.9, "menu": 1.9, "slider": 1.3, "check": 1.5}
+
+
+def panel_module():
+    return sys.modules["brdf_moments.addon.blender.panel"]
+
+
+def widget_unit():
+    system = bpy.context.preferences.system
+    if bpy.app.version >= (4, 0, 0):
+        return int(round(18.0 * system.ui_scale)) + 2 * system.pixel_size
+    return int((20 * system.dpi * system.pixel_size + 36) / 72)
+
+
+def text_px(text):
+    import blf
+
+    size = bpy.context.preferences.ui_styles[0].widget_label.points * bpy.context.preferences.system.ui_scale
+    try:
+        blf.size(0, size)
+    except TypeError:
+        blf.size(0, size, 72)
+    return blf.dimensions(0, text)[0]
+
+
+def cut_cells(entries):
+    """The recorded cells whose text does not fit: what Blender would draw with an ellipsis."""
+    unit = widget_unit()
+    out = []
+    for e in entries:
+        need = text_px(e["text"]) + CELL_PADDING[e["kind"]] * unit + (unit if e["icon"] else 0)
+        if need > e["avail"] + 0.5:
+            out.append({**e, "need": round(need, 1)})
+    return out
+
+
+def ui_region(kind):
+    return next(r for r in area(kind).regions if r.type == ("UI" if kind == "VIEW_3D" else "WINDOW"))
+
+
+def crop(region, name):
+    """Screenshots of one region, the panel itself: the top, then page after page as the
+    mouse wheel scrolls it (up to 4), until a page shows nothing new; scrolled back after."""
+    y = window().height - region.y - region.height
+    paths, last = [], None
+    xdo("mousemove", region.x + region.width // 2, y + region.height // 2)
+    for page in range(4):
+        path = os.path.join(OUT, f"panel-{len(result['panel_shots']):02d}-{name}-{page}.png")
+        blocking(["import", "-window", "root", "-crop", f"{region.width}x{region.height}+{region.x}+{y}", path], 60)
+        with open(path, "rb") as fh:
+            digest_now = hashlib.sha1(fh.read()).hexdigest()
+        if digest_now == last:
+            os.remove(path)
+            break
+        paths.append(path)
+        last = digest_now
+        xdo("click", "--repeat", 12, "5")  # the wheel, down
+        yield 0.5
+        redraw()
+        yield 1.5  # a frame of software GL takes a second or more here while jobs run
+    xdo("click", "--repeat", 60, "4")  # back to the top
+    redraw()
+    yield 0.4
+    return paths
+
+
+class _Stub:
+    """A layout that draws nothing: draw_material's whole panel, every section open, records its
+    cells at a real region's width (the sections folded in the window are checked this way)."""
+
+    def __getattr__(self, name):
+        if name in ("row", "column", "box", "split"):
+            return lambda *a, **k: _Stub()
+        if name == "operator":
+            return lambda *a, **k: type("Props", (), {})()
+        return lambda *a, **k: None
+
+
+def show_our_tab():
+    """The 3D view's sidebar open on the BRDF Moments tab: its tab clicked (Blender 3.4 has no
+    Python access to a sidebar's active tab), found by what the panel draws."""
+    area("VIEW_3D").spaces.active.show_region_ui = True
+    panel = panel_module()
+    for k in range(40):
+        panel.AUDIT = []
+        redraw()
+        yield 0.3
+        if any(e["panel"].startswith("VIEW3D_PT_brdf_moments") for e in panel.AUDIT):
+            panel.AUDIT = None
+            return
+        ui = ui_region("VIEW_3D")
+        xdo("mousemove", ui.x + ui.width - 10, window().height - (ui.y + ui.height) + 15 + 15 * k)
+        xdo("click", 1)
+        yield 0.3
+    panel.AUDIT = None
+    raise RuntimeError("the BRDF Moments tab was not found in the 3D view's sidebar")
+
+
+def panel_shot(name, charts=False):
+    """The panel at this step: screenshots of the sidebar and of Material Properties, every
+    text cell drawn there and in the whole panel measured (``charts``: each chart in turn)."""
+    yield from show_our_tab()
+    panel = panel_module()
+    wm = bpy.context.window_manager
+    kinds = [k for k, *_ in panel.CHARTS] if charts else [wm.brdf_moments_chart]
+    for kind in kinds:
+        wm.brdf_moments_chart = kind
+        panel.AUDIT = []
+        redraw()
+        yield 0.5
+        for _ in range(100):  # until the charts drawn for these widths are in
+            if not any(panel._WANTED[k] not in (panel._SHOWN.get(k), panel._FAILED.get(k)) for k in panel._WANTED):
+                break
+            yield 0.1
+        panel.AUDIT = []
+        redraw()
+        yield 0.5
+        drawn = list(panel.AUDIT)
+        panel.AUDIT = []
+        mat = bpy.data.materials[MAT]
+        whole = {}
+        for kind_area in ("VIEW_3D", "PROPERTIES"):
+            region = ui_region(kind_area)
+            panel._PANEL[0] = f"whole panel at the {kind_area} width"
+            panel.draw_material(_Stub(), mat, type("Ctx", (), {"region": region})())
+            whole[kind_area] = region.width
+        full = list(panel.AUDIT)
+        panel.AUDIT = None
+        side, props = ui_region("VIEW_3D"), ui_region("PROPERTIES")
+        result["panel_shots"].append(
+            {
+                "step": name,
+                "chart": kind,
+                "sidebar": (yield from crop(side, f"{name}-{kind.lower()}-sidebar")),
+                "properties": (yield from crop(props, f"{name}-{kind.lower()}-properties")),
+                "sidebar_width": side.width,
+                "properties_width": props.width,
+                "content_width": {k: panel.content_width(type("Ctx", (), {"region": ui_region(k)})()) for k in whole},
+                "drawn": drawn,
+                "whole": full,
+                "cut": cut_cells(drawn + full),
+                "chart_sizes": sorted({tuple(pv.image_size) for pv in panel._previews().values()}),
+            }
+        )
+        log(
+            "panel",
+            name,
+            kind,
+            len(drawn),
+            "cells drawn,",
+            len(full),
+            "in the whole panel,",
+            len(result["panel_shots"][-1]["cut"]),
+            "cut",
+        )
+    # The check itself: a long label in the sidebar's cell is found cut.
+    ui = panel.content_width(type("Ctx", (), {"region": ui_region("VIEW_3D")})())
+    probe = {
+        "panel": "control",
+        "text": "Analyse again, keeping the sliders where they are",
+        "kind": "label",
+        "icon": True,
+        "avail": ui,
+    }
+    result["cut_control"] = bool(cut_cells([probe]))
+
+
 # --- the artist's session ---------------------------------------------------------------------
 
 
@@ -242,6 +418,7 @@ def session():
     if aa:
         bpy.context.preferences.system.viewport_aa = aa
     result["viewport_aa"] = bpy.context.preferences.system.viewport_aa
+    result["ui"] = {"unit": widget_unit(), "ui_scale": bpy.context.preferences.system.ui_scale}
     yield 1.0
     key_over("VIEW_3D", "Escape")  # closes the first-run splash
     area("PROPERTIES").spaces.active.context = "MATERIAL"
@@ -249,6 +426,7 @@ def session():
     yield 0.5
     redraw()
     yield 0.3
+    yield from panel_shot("start")
     screenshot("start")
     record("start")
     # A control: the main loop with no job, over 3 s, on this (possibly loaded) machine, once the
@@ -268,6 +446,7 @@ def session():
     redraw()
     yield 0.5
     record("load", status=status, message=message, job=last_job(), shot=screenshot("loaded"))
+    yield from panel_shot("loaded", charts=True)
 
     # Load another file and press Esc at once: the material keeps the first file and its analysis.
     # The analysis takes about half a second, so the Esc may come late: try a few times.
@@ -295,6 +474,7 @@ def session():
     redraw()
     yield 0.3
     record("sliders", shot=screenshot("sliders"))
+    yield from panel_shot("sliders")
 
     # Apply, and while it runs: a key that toggles the 3D view's sidebar, and a right-click
     # (a context menu opens; the job must go on). A probe handler started before the job sits
@@ -333,6 +513,7 @@ def session():
     redraw()
     yield 0.5
     record("apply", status=status, job=last_job(), shot=screenshot("applied"))
+    yield from panel_shot("applied")
 
     # A second Apply, cancelled with a real Esc: the material stays as the first Apply left it.
     s.sigma2 = s.fit_sigma2 * 2.5
@@ -365,6 +546,7 @@ def session():
     record(
         "build_preview", status=status, message=message, call_seconds=call, job=last_job(), shot=screenshot("preview")
     )
+    yield from panel_shot("preview")
 
     # Save, then reopen (the driver's timers are persistent).
     blend = os.path.join(OUT, "session.blend")
@@ -382,6 +564,7 @@ def session():
     redraw()
     yield 0.5
     record("reopen", reopened_scene=reopened_scene, shot=screenshot("reopened"))
+    yield from panel_shot("reopened")
 
     # An Apply as an artist makes it in the reopened file: a new slider value, Apply, then wait
     # with hands off (no screenshots, keys or redraws from the driver): the Apply time to quote.
@@ -614,7 +797,10 @@ def finish():
         result["idle"]["ticks"] = largest_gap(result["idle"]["start"], result["idle"]["end"])[1]
         result["idle"]["largest_gil_gap"] = largest_gap(result["idle"]["start"], result["idle"]["end"], probe_ticks)[0]
     result["loadavg_end"] = os.getloadavg()
-    for st in stalls:
+    # The probe thread goes on sampling while this runs: the stalls so far, taken once (one it
+    # appended during this loop, a stall of finish() itself, had none of the fields below).
+    taken = list(stalls)
+    for st in taken:
         after = [t for t in ticks if t > st["since"]]
         st["length"] = (after[0] if after else time.monotonic()) - st["since"]
         end = st["since"] + st["length"]
@@ -632,7 +818,7 @@ def finish():
             ),
             None,
         )
-    result["stalls"] = stalls
+    result["stalls"] = taken
     result["gil_gaps"] = gil_gaps
     result["idle"]["blender_cpu"] = (
         cpu_share(result["idle"]["start"], result["idle"]["end"]) if "idle" in result else None
