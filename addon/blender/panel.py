@@ -691,9 +691,16 @@ def _start_chart(name, kind, side, key, sig):
             slider, used = point if point else ((state.mu_slope, state.sigma2), None)
             corr = state.correlation_a
             points = [(m, s) for _, m, s in state.set_points()] or None
+            raw, fit_, targets = state.profiles_data, state.fit(), state.slider_targets()
 
             def draw():
-                return plot_image.region_plot(region, slider, used, corr, side, side, points, compact=True)
+                from .state import horizon_curve, unpack_profiles
+
+                prof = unpack_profiles(raw) if raw else None
+                horizon = horizon_curve(prof, fit_, targets, region, used or slider)
+                return plot_image.region_plot(
+                    region, slider, used, corr, side, side, points, compact=True, horizon=horizon
+                )
 
         else:
             # Only the stored text here: decoding the profiles takes 0.1-0.2 s on this machine's

@@ -569,13 +569,13 @@ def region_image(mat, later=False):
             width=REGION_PLOT_SIZE[0],
             height=REGION_PLOT_SIZE[1],
             set_points=points,
-            horizon=_horizon(prof, fit, targets, region, used or slider),
+            horizon=horizon_curve(prof, fit, targets, region, used or slider),
         )
 
     return draw_later(region_image_name(mat), draw, now=not later)
 
 
-def _horizon(prof, fit, targets, region, point):
+def horizon_curve(prof, fit, targets, region, point):
     """The material's horizon curve at the sliders' mean slope: what the table re-fits to for each
     variance request of the region's grid, then the sliders' own point (SPEC §3); None without
     an analysis."""
