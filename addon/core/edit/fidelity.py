@@ -177,11 +177,11 @@ def _far_geometry(op):
 
 
 def far_energy(edited, source, targets: ViewTargets, original: Profiles) -> np.ndarray:
-    """(V,) per view, the share of the edited slice's energy (average channel's specular part)
-    lying more than FAR_WIDTHS target widths from the target lobe, less the share the source
-    slice had beyond as many of its own measured widths: energy the edit moved far from the lobe
-    (SPEC §3's shape rule). Each cell part's centroid (the operator's) places it; the width is
-    the average channel's average variance (target, or measured for the source)."""
+    """(V,) per view, the share of the edited slice's energy lying more than FAR_WIDTHS target
+    widths from the target lobe, less the share the source slice had beyond as many of its own
+    measured widths: energy the edit moved far from the lobe (SPEC §3's shape rule), the worst of
+    r, g, b (a colour edit moves nothing in any channel). Each cell part's centroid (the
+    operator's) places it; the width is the channel's average variance (target, or measured)."""
     from ..integrate import get_operator
     from ..profiles import specular_part
 
@@ -189,20 +189,23 @@ def far_energy(edited, source, targets: ViewTargets, original: Profiles) -> np.n
     op = get_operator(theta)
     g = _far_geometry(op)
     kd = original.kd if original.split else np.zeros(3)
-    cells = g["cells"]
-    p = original["avg"]
-    measured_var = 0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float))
+    cells, view = g["cells"], g["view"]
+    n = len(theta)
 
     def share(table, mean, var):
-        values = specular_part(table, kd, original.split, dtype=np.float32)[1][cells] * g["w0"]
-        centre = (np.nan_to_num(mean) + theta).astype(np.float32)[g["view"]]
-        limit = (FAR_WIDTHS**2 * np.maximum(np.nan_to_num(var, nan=1.0), 1e-12)).astype(np.float32)[g["view"]]
-        far = (g["x"] - centre) ** 2 + g["phi2"] > limit
-        n = len(theta)
-        total = np.bincount(g["view"], weights=values, minlength=n)
-        beyond = np.bincount(g["view"], weights=np.where(far, values, 0.0), minlength=n)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(total > 0, beyond / total, 0.0)
+        """(V, 3): per channel, the slice's share of energy beyond FAR_WIDTHS widths."""
+        spec = specular_part(table, kd, original.split, dtype=np.float32, with_average=False)[0]
+        out = np.zeros((n, 3))
+        for c in range(3):
+            values = spec[c][cells] * g["w0"]
+            centre = (np.nan_to_num(mean[:, c]) + theta).astype(np.float32)[view]
+            limit = FAR_WIDTHS**2 * np.maximum(np.nan_to_num(var[:, c], nan=1.0), 1e-12)
+            far = (g["x"] - centre) ** 2 + g["phi2"] > limit.astype(np.float32)[view]
+            total = np.bincount(view, weights=values, minlength=n)
+            beyond = np.bincount(view, weights=np.where(far, values, 0.0), minlength=n)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out[:, c] = np.where(total > 0, beyond / total, 0.0)
+        return out
 
     # The source's own share depends on the source alone: kept (one entry, holding the objects
     # themselves, so an identity cannot be reused by another table) for the next edit of it.
@@ -210,9 +213,10 @@ def far_energy(edited, source, targets: ViewTargets, original: Profiles) -> np.n
     if kept is not None and kept[0] is source and kept[1] is original:
         before = _FAR_SOURCE["before"]
     else:
-        before = share(source, np.asarray(p["mu_theta"], float), measured_var)
+        measured_var = 0.5 * (_stack(original, "sigma_tt") + _stack(original, "sigma_pp"))
+        before = share(source, _stack(original, "mu_theta"), measured_var)
         _FAR_SOURCE.update(key=(source, original), before=before)
-    return np.maximum(share(edited, targets.avg_mean, targets.avg_var) - before, 0.0)
+    return np.maximum(share(edited, targets.mean, targets.variance) - before, 0.0).max(axis=1)
 
 
 def measure(edited, targets: ViewTargets, original: Profiles, reachable=None, tables=None) -> Fidelity:
