@@ -18,6 +18,7 @@ import bpy
 import numpy as np
 
 from ..core.render.live import FINAL_SAMPLES, source_table, work
+from . import lifecycle
 
 DEBOUNCE = 0.1  # seconds of quiet after a slider move before the work starts
 POLL = 0.05
@@ -174,7 +175,7 @@ def slider_moved(mat):
         _start(lambda: _work(job, stale=lambda: _GEN.get(name) != gen, post=post))
         return None
 
-    bpy.app.timers.register(kick, first_interval=DEBOUNCE)
+    lifecycle.register_timer(kick, first_interval=DEBOUNCE)
 
 
 def _start(task):
@@ -186,9 +187,18 @@ def _start(task):
         except Exception as exc:  # noqa: BLE001 - a failed live update leaves the last image
             print(f"BRDF Moments: live preview: {type(exc).__name__}: {exc}")
 
-    threading.Thread(target=run, name="brdf_moments: live preview", daemon=True).start()
-    if not bpy.app.timers.is_registered(_apply_posted):
-        bpy.app.timers.register(_apply_posted, first_interval=POLL)
+    lifecycle.start_thread(run, "brdf_moments: live preview", stop=_stop_all)
+    lifecycle.register_timer(_apply_posted, first_interval=POLL)
+
+
+@lifecycle.on_shutdown
+def _stop_all():
+    """Unregister: every live work in flight becomes stale (it stops at its next stage) and
+    nothing it posted is applied."""
+    for name in list(_GEN):
+        _GEN[name] += 1
+    with _LOCK:
+        _POSTED.clear()
 
 
 def pause(mat):

@@ -5,7 +5,7 @@ import importlib
 
 import bpy
 
-from . import panel, state
+from . import lifecycle, panel, state
 from ...operators import (
     analyse,
     apply_edit,
@@ -81,6 +81,9 @@ PRELOAD = (
 def register():
     for name in PRELOAD:
         importlib.import_module(name, __package__)
+    # multiprocessing (the job runner's), imported here and not inside some later script run by
+    # blender -P: its alias of that script's __main__ would crash Blender's exit (see lifecycle).
+    lifecycle.import_multiprocessing()
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     state.attach()
@@ -88,9 +91,17 @@ def register():
         bpy.app.handlers.load_post.append(_file_loaded)
 
 
+# What the last unregister found still running (tests read it).
+LAST_SHUTDOWN: dict = {}
+
+
 def unregister():
     if _file_loaded in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(_file_loaded)
+    # Jobs, timers and threads first: none of them may reach for a class or property that is
+    # about to go (a timer after this would find no Material.brdf_moments).
+    LAST_SHUTDOWN.clear()
+    LAST_SHUTDOWN.update(lifecycle.shutdown())
     state.detach()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)
