@@ -101,12 +101,16 @@ def _job(mat):
     source = bpy.path.abspath(state.source_path)
     if img is None or not state.analysed or state.preview_mode != "TABULATED" or not source_exists(source):
         return None
+    try:
+        targets = state.slider_targets()
+    except ValueError:
+        return None  # a slider outside its declared range: Apply says which
     w, h = img.size
     layout = sphere_layout(w, h, 2)
     return dict(
         mat=mat.name,
         source=source,
-        targets=state.slider_targets(),
+        targets=targets,
         prof=state.profiles(),
         fit=state.fit(),
         region=state.region(),  # Apply's: so that its synthesis is the one kept here
