@@ -348,7 +348,7 @@ def bench_preview(quick=False):
     return out
 
 
-def render_default_error(names=("ggx_glossy", "ggx_mirror"), extra=(("--path", "osl"),)):
+def render_default_error(names=("ggx_glossy", "ggx_mirror"), extra=(("--path", "osl"),), gt_spp=GT_SPP):
     """``python -m addon render`` as a user runs it (its defaults: 256², studio, original and
     edited), against the converged reference; then with each of ``extra``'s options for
     comparison. Returns markdown lines (BENCHMARKS.md, issue 29)."""
@@ -377,7 +377,7 @@ def render_default_error(names=("ggx_glossy", "ggx_mirror"), extra=(("--path", "
             edited = edited_table(table, name)
             edited_path = os.path.join(tmp, f"{name.replace('/', '-')}-edited.binary")
             write_merl(edited, edited_path)
-            gt, noise, _ = ground_truth(layout, [TableBRDF(table), TableBRDF(edited)], env, name)
+            gt, noise, _ = ground_truth(layout, [TableBRDF(table), TableBRDF(edited)], env, name, gt_spp)
             for options in ((), *extra):
                 out = os.path.join(tmp, "render.exr")
                 t = time.perf_counter()
@@ -392,9 +392,11 @@ def render_default_error(names=("ggx_glossy", "ggx_mirror"), extra=(("--path", "
                 e = relative_rmse(img, gt, mask), normalized_rmse(img, gt, mask)
                 what = " ".join(options) or "(defaults)"
                 lines.append(f"| {name} | {what} | {took:.1f} s | {e[0]:.2%} ({e[1]:.2%}) |")
-            lines.append(f"| {name} | ground truth {GT_SPP} spp, its own noise | | {noise:.2%} |")
+            lines.append(f"| {name} | ground truth {gt_spp} spp, its own noise | | {noise:.2%} |")
     return lines
 
 
-if __name__ == "__main__":
-    print("\n".join(render_default_error()))
+if __name__ == "__main__":  # python -m addon.tools.bench_preview [GT_SPP]: render's default (issue 29)
+    import sys
+
+    print("\n".join(render_default_error(gt_spp=int(sys.argv[1]) if len(sys.argv) > 1 else GT_SPP)))
