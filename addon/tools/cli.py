@@ -15,7 +15,10 @@ import sys
 # what it measured against the converged reference (bench_preview.render_default_error; the
 # figures and the command are in BENCHMARKS.md).
 RENDER_BAKE_SAMPLES = 128
-RENDER_DEFAULT_ERROR = "within 5 % per pixel of the converged reference on the glossy and near-mirror samples"
+RENDER_DEFAULT_ERROR = (
+    "measured 1.4 % per pixel on the glossy GGX sample and 3.9 % on the near-mirror one against "
+    "a 4096-spp Monte Carlo reference, its own noise included (target 5 %)"
+)
 
 
 class InputError(Exception):
