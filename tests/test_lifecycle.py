@@ -65,3 +65,24 @@ def test_the_multiprocessing_alias_never_points_at_a_scripts_main(blender):
         sys.modules["__main__"] = saved[0]
         if saved[1] is not None:
             sys.modules["__mp_main__"] = saved[1]
+
+
+def test_the_timer_book_forgets_timers_that_ran(blender):
+    """A slider move registers a new debounce timer each time: the book of timers to stop at
+    unregister keeps only those still registered, so a long session does not grow it."""
+    lifecycle = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.lifecycle"]
+    made = []
+    for _ in range(50):
+
+        def once():
+            return None
+
+        made.append(once)
+        lifecycle.register_timer(once, first_interval=100.0)
+    assert set(made) <= set(lifecycle.timers())
+    for fn in made:
+        blender.app.timers.unregister(fn)  # as if each had run
+    last = made[-1]
+    lifecycle.register_timer(last, first_interval=100.0)
+    assert [f for f in lifecycle._TIMERS if f in made] == [last]
+    blender.app.timers.unregister(last)

@@ -94,6 +94,8 @@ def register_timer(fn, first_interval=0.0, persistent=False):
     if not bpy.app.timers.is_registered(fn):
         bpy.app.timers.register(fn, first_interval=first_interval, persistent=persistent)
     with _LOCK:
+        # a slider move registers a new debounce function each time: forget the ones that ran
+        _TIMERS[:] = [f for f in _TIMERS if f is fn or bpy.app.timers.is_registered(f)]
         if fn not in _TIMERS:
             _TIMERS.append(fn)
 
