@@ -1,6 +1,9 @@
 """BRDF Moments: a Blender extension (4.2+) that also loads as a legacy add-on (3.4-4.1).
 
-Registration lives in ``addon.blender.registration``; the engine (``addon.core``) never imports bpy.
+This is the extension's entry point and the one place that gathers its parts: the operators
+(``operators/``, one per file) and the glue they stand on (``addon.blender``: state, panels,
+handlers, registered by ``addon.blender.registration``). Imports go one way, down: entry point,
+operators, glue, engine (``addon.core``, which never imports bpy); tests/test_layout.py checks it.
 """
 
 bl_info = {
@@ -14,13 +17,43 @@ bl_info = {
 }
 
 
+def operator_classes():
+    """The extension's operator classes, in the order they are registered. (Not named
+    ``operators``: importing the subpackage sets that attribute of this package.)"""
+    from .operators import (
+        analyse,
+        apply_edit,
+        build_preview,
+        clear_set,
+        export,
+        load_merl,
+        load_set,
+        reset_sliders,
+        restore_material,
+        show_image,
+    )
+
+    return (
+        load_merl.BRDFMOMENTS_OT_load_merl,
+        analyse.BRDFMOMENTS_OT_analyse,
+        reset_sliders.BRDFMOMENTS_OT_reset_sliders,
+        apply_edit.BRDFMOMENTS_OT_apply_edit,
+        restore_material.BRDFMOMENTS_OT_restore_material,
+        export.BRDFMOMENTS_OT_export,
+        build_preview.BRDFMOMENTS_OT_build_preview,
+        show_image.BRDFMOMENTS_OT_show_image,
+        load_set.BRDFMOMENTS_OT_load_set,
+        clear_set.BRDFMOMENTS_OT_clear_set,
+    )
+
+
 def register():
     from .addon.blender import registration
 
-    registration.register()
+    registration.register(operator_classes())
 
 
 def unregister():
     from .addon.blender import registration
 
-    registration.unregister()
+    registration.unregister(operator_classes())

@@ -1,1 +1,1 @@
-"""Operators, one per file; ``addon.blender.registration`` registers them."""
+"""Operators, one per file; the extension's entry point (the top-level ``__init__.py``) gathers them."""

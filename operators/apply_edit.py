@@ -52,9 +52,10 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         from ..addon.core.edit import edit, scale_to_albedo
         from ..addon.core.fits import fit_material
         from ..addon.core.merl import write_merl
-        from ..addon.core.nbrdf import read_table, source_file
         from ..addon.core.names import safe_name
+        from ..addon.core.nbrdf import read_table
         from ..addon.core.profiles import compute_profiles
+        from ..addon.core.sources import source_file
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
@@ -120,6 +121,9 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
                 res.profiles = compute_profiles(
                     res.table, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split
                 )
+            from ..addon.core.edit.fidelity import report
+
+            promise = json.dumps(report(res, prof, table), allow_nan=False)  # Export writes it beside the table
             principled = texture = None
             if shader == "principled":
                 from ..addon.core.principled import fit_principled
@@ -133,7 +137,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
                 texture = table_texture_pixels(values, kd)
             report_progress(10, 10)
             res.table = None  # written to `out`; not sent back from the worker process (100 MB)
-            return out, res, prof, fit, principled, texture
+            return out, res, prof, fit, principled, texture, promise
 
         from ..addon.blender import live
 
@@ -154,7 +158,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
 
         from ..addon.blender.state import pack_profiles, plot_image
 
-        out, res, prof, fit, principled, texture = result
+        out, res, prof, fit, principled, texture, promise = result
         mat = bpy.data.materials[self._mat_name]
         state = mat.brdf_moments
         state.edited_path = out
@@ -165,6 +169,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         state.max_albedo = [finite(v) for v in res.max_albedo]
         state.edit_warnings = "\n".join(res.warnings)
         state.edit_fidelity = res.fidelity.to_json() if res.fidelity is not None else ""
+        state.edit_report = promise
         plot_image(mat, prof, fit, res.profiles, later=True)
         from ..addon.blender import live
 
@@ -181,8 +186,12 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             note = f"; '{mat.name}' now renders the edited table (OSL)"
         level = {"WARNING"} if res.warnings else {"INFO"}
         msg = (
-            f"{mat.name}: reached μ̃ {state.achieved_mu_slope:+.3f} (target {res.target_mu_slope:+.3f}), "
-            f"σ̃² {state.achieved_sigma2:.4f} (target {res.target_sigma2:.4f}), "
+            f"{mat.name}: reached μ̃ {state.achieved_mu_slope:+.3f} (announced {_said(res.announced[0], '+.3f')}), "
+            f"σ̃² {state.achieved_sigma2:.4f} (announced {_said(res.announced[1], '.4f')}), "
             f"largest albedo {max(state.max_albedo):.3f}"
         )
         self.report(level, msg + note + ("; " + "; ".join(res.warnings) if res.warnings else ""))
+
+
+def _said(value, fmt):
+    return "—" if value is None else format(value, fmt)

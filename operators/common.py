@@ -39,8 +39,9 @@ def analysed_material(context, name=""):
 def analysis_work(path, floor="min"):
     """A function of ``report_progress`` that reads, analyses and fits ``path`` (no bpy)."""
     from ..addon.core.fits import fit_material
-    from ..addon.core.nbrdf import read_table, source_exists
+    from ..addon.core.nbrdf import read_table
     from ..addon.core.profiles import compute_profiles
+    from ..addon.core.sources import source_exists
 
     path = bpy.path.abspath(path) if path.startswith("//") else path
     if not path:
@@ -75,7 +76,7 @@ def source_stamp(path) -> str:
     import json
     import os
 
-    from ..addon.core.nbrdf import source_file
+    from ..addon.core.sources import source_file
 
     try:
         st = os.stat(source_file(bpy.path.abspath(path)))
@@ -98,11 +99,13 @@ def store_analysis(mat, path, result) -> str:
     state.store_analysis(prof, fit, keep_sliders=again)
     state.source_stamp = source_stamp(path)
     state.region_data = json.dumps(regions)
+    state.refresh_announcement()
     if not again:
         state.edited_path = ""
         state.edited_profiles_data = ""
         state.edit_warnings = ""
         state.edit_fidelity = ""
+        state.edit_report = ""
         state.principled_data = ""
     plot_image(mat, prof, fit, edited=None if again else False, later=True)
     region_image(mat, later=True)

@@ -21,9 +21,9 @@ def _write_json(data, path):
 
 def _write_png(mat, path, edited):
     """The profile figure with matplotlib where it exists, else the panel's own image."""
-    from ..addon.core.atomic import atomic_path
-
     import importlib.util
+
+    from ..addon.core.atomic import atomic_path
 
     state = mat.brdf_moments
     prof = state.edited_profiles() if edited else state.profiles()
@@ -100,12 +100,18 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
         if self.what == "TABLE":
             if not state.edited_path or not os.path.isfile(state.edited_path):
                 raise ValueError(f"{mat.name}: nothing to export yet; press Apply to re-synthesize the table")
-            from ..addon.core.nbrdf import source_file
+            from ..addon.core.sources import source_file
 
             dest = safe_export_path(folder, f"{base}_edited", ".binary")
             check_sealed(state.edited_path, "edited table (Apply's cache)")
             write_merl(read_merl(state.edited_path), dest, source=source_file(bpy.path.abspath(state.source_path)))
             written.append(dest)
+            if state.edit_report:
+                # The per-view promise beside the table (what `edit --report` writes), so anyone
+                # can check the edit without the extension.
+                dest = safe_export_path(folder, f"{base}_edited_report", ".json")
+                _write_json(json.loads(state.edit_report), dest)
+                written.append(dest)
         elif self.what == "PROFILES":
             data = {"material": mat.name, "source": state.source_path, "measured": state.profiles().to_json()}
             edited = state.edited_profiles()

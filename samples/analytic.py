@@ -68,3 +68,33 @@ class GGX:
         fres = f0 + (1.0 - f0) * schlick
         spec = fres * (d * g1(ci) * g1(co) / (4.0 * ci * co))
         return _rgb(self.kd).reshape((3,) + (1,) * ch.ndim) / np.pi + spec
+
+
+@dataclass(frozen=True)
+class Beckmann:
+    """Microfacet Beckmann with Smith masking (Walter et al. 2007's rational form of G1) and a
+    Schlick Fresnel over a Lambertian base; the defaults have no Fresnel and no base."""
+
+    roughness: float = 0.1  # Beckmann m
+    f0: tuple = (1.0, 1.0, 1.0)
+    kd: tuple = (0.0, 0.0, 0.0)
+
+    def __call__(self, wi, wo):
+        wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+        m2 = self.roughness**2
+        h = wi + wo
+        h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+        ch = np.clip(h[..., 2], 1e-6, 1.0)
+        d = np.exp(-(1.0 - ch * ch) / (ch * ch * m2)) / (np.pi * m2 * ch**4)
+        ci = np.clip(wi[..., 2], 1e-12, 1.0)
+        co = np.clip(wo[..., 2], 1e-12, 1.0)
+
+        def g1(c):
+            a = c / (self.roughness * np.sqrt(np.maximum(1.0 - c * c, 1e-300)))
+            return np.where(a < 1.6, (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a), 1.0)
+
+        cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
+        f0 = _rgb(self.f0).reshape((3,) + (1,) * ch.ndim)
+        fres = f0 + (1.0 - f0) * (1.0 - cd) ** 5
+        spec = fres * (d * g1(ci) * g1(co) / (4.0 * ci * co))
+        return _rgb(self.kd).reshape((3,) + (1,) * ch.ndim) / np.pi + spec

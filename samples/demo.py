@@ -116,9 +116,12 @@ def main():
     )
 
     # The edit: a blurrier, slightly dimmer highlight (warp mode, the default: every view's
-    # lobe widened by the same factor, its measured shape kept).
+    # unclipped lobe widened by the same factor and clipped again by the horizon, SPEC §3).
     state.sigma2 = min(state.fit_sigma2 * 1.5, 0.8)
     state.strength = 0.8
+    announced = json.loads(state.announced_json) if state.announced_json else None  # what the panel shows
+    if announced:
+        _say("sliders", f"announced mu~ {announced['mu_slope']:+.4f}, sigma2~ {announced['sigma2']:.4f}")
     t0 = time.perf_counter()
     bpy.ops.brdf_moments.apply_edit(material=mat.name)
     _say(
@@ -157,6 +160,7 @@ def main():
         "sample": args.sample,
         "fit": {"mu_slope": state.fit_mu_slope, "sigma2": state.fit_sigma2},
         "target": {"mu_slope": state.mu_slope, "sigma2": state.sigma2, "strength": state.strength, "mode": state.mode},
+        "announced": announced,  # what the panel showed beside the sliders before Apply
         "reached": {"mu_slope": state.achieved_mu_slope, "sigma2": state.achieved_sigma2},
         "per_view": state.fidelity(),  # the written table re-measured view by view (SPEC §6)
         "max_albedo": list(state.max_albedo),

@@ -34,8 +34,8 @@ def pytest_collection_modifyitems(config, items):
 
 @pytest.fixture(scope="session")
 def sample_table():
-    from addon.core.merl import read_merl
     import samples
+    from addon.core.merl import read_merl
 
     cache = {}
 

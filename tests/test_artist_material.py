@@ -16,8 +16,9 @@ def artist(fresh, tmp_path, monkeypatch):
     """The artist's scene: a sphere with their own node tree (a Mix of two shaders), the material
     analysed from ggx_glossy; a small Cycles render of the sphere under a constant sky."""
     import samples
+    from addon.blender.preview import scene as sc
+    from addon.blender.preview import write_environment
     from addon.core.render import sphere_layout
-    from addon.blender.preview import scene as sc, write_environment
 
     bpy = fresh
     src = tmp_path / "glossy.binary"
@@ -90,8 +91,8 @@ def _tree(mat):
 
 
 def test_apply_renders_the_edit_and_restore_gives_the_original_back(artist):
-    from addon.core.render import Environment, TableBRDF, render_reference, relative_rmse
     from addon.core.merl import read_merl
+    from addon.core.render import Environment, TableBRDF, relative_rmse, render_reference
 
     bpy, mat, scene, layout, tmp = artist
     before_tree = _tree(mat)
@@ -208,10 +209,10 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     quarter-resolution bake of one synthesis round, the original sphere is untouched."""
     import sys
 
+    from addon.blender.preview import load_environment, resolve_environment
     from addon.core.edit import EditTargets
     from addon.core.merl import read_merl
     from addon.core.render import TableBRDF, bake_sphere, sphere_layout
-    from addon.blender.preview import load_environment, resolve_environment
 
     bpy, mat, scene, layout, tmp = artist
     live = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.live"]

@@ -62,6 +62,7 @@ def test_a_render_is_the_same_under_45_and_50(py50, tmp_path):
     Cycles' default the two versions' 4-sample OSL renders differ by 340 % RMSE (measured),
     with it they agree to float rounding."""
     import OpenEXR
+
     import samples
 
     src = samples.sample_path("ggx_glossy")

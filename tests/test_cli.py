@@ -104,6 +104,7 @@ def test_edit_without_sliders_copies_values_and_never_overwrites(tmp_path):
     import hashlib
 
     import numpy as np
+
     import samples
     from addon.core.merl import read_merl
 
@@ -112,7 +113,8 @@ def test_edit_without_sliders_copies_values_and_never_overwrites(tmp_path):
     out = tmp_path / "same.binary"
     res = run("edit", src, "--out", str(out))
     assert res.returncode == 0, res.stderr
-    assert "achieved mean slope" in res.stdout and "largest directional albedo" in res.stdout
+    assert "re-fit    mean slope" in res.stdout and "largest directional albedo" in res.stdout
+    assert "announced mean slope" in res.stdout
     np.testing.assert_array_equal(read_merl(out).rho, read_merl(src).rho)
     res = run("edit", src, "--out", src, "--alpha-scale", "0.5")
     assert res.returncode == 2 and "overwrite the input" in res.stderr
@@ -168,8 +170,8 @@ def test_every_help_prints_and_render_says_its_default():
         res = run(*cmd, "--help")
         assert res.returncode == 0 and "usage:" in res.stdout and not res.stderr, (cmd, res.stderr)
     text = " ".join(run("render", "--help").stdout.split())
-    from addon.tools.cli import RENDER_BAKE_SAMPLES, RENDER_DEFAULT_ERROR, build_parser
     from addon.core.render.live import FINAL_SAMPLES
+    from addon.tools.cli import RENDER_BAKE_SAMPLES, RENDER_DEFAULT_ERROR, build_parser
 
     # the default is the accurate baked path, at the panel's bake, and the help says its error
     args = build_parser().parse_args(["render", "x.binary", "--out", "o.png"])

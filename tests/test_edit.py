@@ -5,13 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from addon.core.edit import EditTargets, directional_albedo, edit, scale_to_albedo
 from addon.core import truncated
-from addon.core.render.lobe import truncnorm_pdf
+from addon.core.edit import EditTargets, directional_albedo, edit, scale_to_albedo
 from addon.core.fits import fit_material
-from addon.core.merl import lookup
 from addon.core.geometry import view_centred
+from addon.core.merl import lookup
 from addon.core.profiles import compute_profiles
+from addon.core.render.lobe import truncnorm_pdf
 
 
 @pytest.fixture(scope="module")

@@ -132,3 +132,156 @@ def test_each_side_imports_only_what_it_may():
         ]
     assert bad == []
     assert len(tools) >= 8 and len(side) >= 15  # the scan saw both sides
+
+
+# --- one way down ---------------------------------------------------------------------------
+# Every module of the product, as a dotted name ("__init__" is the extension's entry point).
+SCANNED = ("addon", "operators", "samples", "scripts")
+
+
+def _modules():
+    mods = {"__init__": os.path.join(ROOT, "__init__.py")}
+    for p in _python_files(*SCANNED):
+        name = os.path.relpath(p, ROOT)[:-3].replace(os.sep, ".")
+        mods[name.removesuffix(".__init__")] = p
+    return mods
+
+
+def _import_graph():
+    """module -> {(imported module, line)}, every import counted (those inside functions too:
+    a lazy import still runs, and a circle through one only waits for the first call).
+
+    ``from pkg import name`` counts as an import of ``pkg.name`` when that is a module; an
+    import of the module's own package (or one above it) is not an edge: a package's
+    ``__init__`` always runs before its modules, whoever imports them."""
+    mods = _modules()
+    graph = {}
+    for name, path in mods.items():
+        ancestors = {".".join(name.split(".")[:i]) for i in range(1, name.count(".") + 1)}
+        edges = set()
+        for target, line in _imported_modules(path):
+            target = target.lstrip(".")  # the entry point's ``from .addon...`` is the package root's
+            while target and target not in mods:
+                target = target.rpartition(".")[0]  # ``from m import function`` is an import of m
+            if target and target != name and target not in ancestors:
+                edges.add((target, line))
+        graph[name] = edges
+    return graph
+
+
+def _circles(graph):
+    """The strongly connected groups of more than one module (Tarjan, iterative)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted({t for t, _ in graph[root]})))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, targets = work[-1]
+            for t in targets:
+                if t not in index:
+                    index[t] = low[t] = len(index)
+                    stack.append(t)
+                    on_stack.add(t)
+                    work.append((t, iter(sorted({u for u, _ in graph[t]}))))
+                    break
+                if t in on_stack:
+                    low[node] = min(low[node], index[t])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == index[node]:
+                    group = []
+                    while True:
+                        m = stack.pop()
+                        on_stack.discard(m)
+                        group.append(m)
+                        if m == node:
+                            break
+                    if len(group) > 1:
+                        found.append(sorted(group))
+    return found
+
+
+def test_no_import_circles():
+    """No module imports, directly or through others, one that imports it back."""
+    graph = _import_graph()
+    assert _circles(graph) == []
+    assert len(graph) >= 80  # the scan saw the product
+
+
+def test_the_circle_finder_finds_circles():
+    """The finder itself, on made-up graphs: a three-module ring (the shape merl -> names ->
+    nbrdf -> merl had) and a two-module one are found; a chain and a diamond are not."""
+    ring = {"a": {("b", 1)}, "b": {("c", 1)}, "c": {("a", 1)}, "d": {("a", 1)}}
+    assert _circles(ring) == [["a", "b", "c"]]
+    pair = {"x": {("y", 1)}, "y": {("x", 2)}, "z": set()}
+    assert _circles(pair) == [["x", "y"]]
+    diamond = {"a": {("b", 1), ("c", 1)}, "b": {("d", 1)}, "c": {("d", 1)}, "d": set()}
+    assert _circles(diamond) == []
+
+
+# The floors of the house, lowest first. A module may import its own room (the longest name
+# listed that it falls under) or a room on a lower floor; never one beside it or above it.
+FLOORS = (
+    # The engine, numpy and scipy only; the package root and its stdlib helpers.
+    ("addon.core", "addon", "addon.script_args", "addon.wheel"),
+    # The figure writer both sides export with, and the sample catalogue the tools and tests read.
+    ("addon.tools.plots", "samples"),
+    # The glue: per-material state, panels, jobs, the preview scene.
+    ("addon.blender",),
+    # One operator per file, standing on the glue.
+    ("operators",),
+    # The headless commands; the bridges among them drive the glue as a module (above).
+    ("addon.tools",),
+    # Entry points: the extension's (it gathers the operators and the glue), `python -m addon`,
+    # `python -m samples`, the demo and the scripts.
+    ("__init__", "addon.__main__", "samples.__main__", "samples.demo", "scripts"),
+)
+
+
+def _room(module):
+    """(floor, room) of ``module``: the longest listed name it falls under."""
+    best = None
+    for floor, rooms in enumerate(FLOORS):
+        for room in rooms:
+            if _within(module, (room,)) and (best is None or len(room) > len(best[1])):
+                best = (floor, room)
+    return best
+
+
+def _upward(graph):
+    bad = []
+    for name, edges in sorted(graph.items()):
+        floor, room = _room(name)
+        for target, line in sorted(edges):
+            t_floor, t_room = _room(target)
+            if t_room != room and t_floor >= floor:
+                where = "above" if t_floor > floor else "beside"
+                bad.append(f"{name}:{line} imports {target}, {where} it ({room} -> {t_room})")
+    return bad
+
+
+def test_imports_go_one_way_down():
+    """Every import goes down a floor or stays in its room: the glue does not reach up for the
+    operators (the entry point gathers both), the engine for the glue or the tools, and so on."""
+    graph = _import_graph()
+    assert [m for m in graph if _room(m) is None] == []  # every module has a floor
+    assert _upward(graph) == []
+
+
+def test_the_floor_check_sees_the_old_registration():
+    """The shape this rule was written for: the glue importing an operator (the old
+    registration.py) is upward; an operator importing the glue is not."""
+    graph = {
+        "addon.blender.registration": {("operators.analyse", 9)},
+        "operators.analyse": {("addon.blender.jobs", 3)},
+        "addon.blender.jobs": set(),
+    }
+    assert _upward(graph) == [
+        "addon.blender.registration:9 imports operators.analyse, above it (addon.blender -> operators)"
+    ]

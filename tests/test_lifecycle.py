@@ -34,6 +34,7 @@ def check_cycle(result):
 
 def test_register_unregister_register_with_work_in_flight(blender, sample_table, tmp_path):
     import cycle
+
     import samples
 
     sample_table("ggx_glossy")

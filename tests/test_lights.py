@@ -4,8 +4,7 @@ sampler whose stated density is the one it draws from, and a choice that lowers 
 import numpy as np
 import pytest
 
-from addon.core.render import Environment, TableBRDF, bake_sphere, reference_sphere
-from addon.core.render import lights
+from addon.core.render import Environment, TableBRDF, bake_sphere, lights, reference_sphere
 from addon.core.render.envmap import _direction
 from addon.core.render.scene import interior_texels
 

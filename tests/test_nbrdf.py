@@ -202,12 +202,14 @@ def test_bad_sources_raise_one_line_errors_naming_the_file(tmp_path):
 
 
 def test_parse_source(tmp_path):
-    assert nbrdf.parse_source(f"{RGL}:satin_gold") == (RGL, "satin_gold")
-    assert nbrdf.parse_source(RGL) == (RGL, None)
+    from addon.core import sources
+
+    assert sources.parse_source(f"{RGL}:satin_gold") == (RGL, "satin_gold")
+    assert sources.parse_source(RGL) == (RGL, None)
     odd = tmp_path / "odd.npz:x"
     odd.write_bytes(b"")
-    assert nbrdf.parse_source(str(odd)) == (str(odd), None)
-    assert nbrdf.parse_source("plain.binary") == ("plain.binary", None)
+    assert sources.parse_source(str(odd)) == (str(odd), None)
+    assert sources.parse_source("plain.binary") == ("plain.binary", None)
 
 
 def test_measured_names():

@@ -128,10 +128,18 @@ def test_apply_energy_strength_and_export_everything(analysed, tmp_path):
     assert names == [
         "Rough_edited.binary",
         "Rough_edited_profiles.png",
+        "Rough_edited_report.json",
         "Rough_measured_profiles.png",
         "Rough_profiles.json",
     ]
     np.testing.assert_array_equal(read_merl(out / "Rough_edited.binary").rho, edited.rho)
+    # The per-view promise beside the table: an energy edit announces the fit and re-measures to it.
+    report = json.loads((out / "Rough_edited_report.json").read_text())
+    assert report["meets"] and not report["clamped"] and len(report["theta_o"]) == len(report["judged"])
+    assert report["announced"]["sigma2"] == pytest.approx(state.fit_sigma2, rel=1e-6)
+    for ch in ("r", "g", "b", "avg"):
+        got, want = (np.asarray(report[k]["alpha"][ch], float) for k in ("achieved", "target"))
+        assert np.nanmax(np.abs(got / want - 1.0)[np.asarray(report["judged"])]) < 1e-4
     data = json.loads((out / "Rough_profiles.json").read_text())
     assert set(data) == {"material", "source", "measured", "edited"}
     assert data["measured"]["avg"]["alpha"] == pytest.approx(state.profiles()["avg"]["alpha"], rel=1e-6)
@@ -224,8 +232,8 @@ def test_panel_draws_every_state_with_real_properties_and_operators(analysed):
 def test_every_operator_is_undo_aware(blender):
     import sys
 
-    reg = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.registration"]
-    for op in reg.OPERATORS:
+    entry = sys.modules["bl_ext.bmtest.brdf_moments"]  # the extension's entry point gathers them
+    for op in entry.operator_classes():
         if op.bl_idname in {"brdf_moments.export", "brdf_moments.show_image"}:
             continue  # writes files / changes what a window shows: nothing in the .blend to undo
         assert "UNDO" in op.bl_options, op.bl_idname

@@ -34,8 +34,8 @@ def scene(bpy):
 
 @pytest.fixture(scope="module")
 def sky(bpy, tmp_path_factory):
-    from addon.core.render import Environment
     from addon.blender.preview import write_environment
+    from addon.core.render import Environment
 
     env = Environment.from_function(lambda d: np.repeat(A + B * d[:, 2:3], 3, axis=1), 256, 128)
     return write_environment(env.pixels, str(tmp_path_factory.mktemp("env") / "sky.exr"))
@@ -44,8 +44,8 @@ def sky(bpy, tmp_path_factory):
 @pytest.fixture(scope="module")
 def sun(bpy, tmp_path_factory):
     """A dim sky and a small bright sun up and to the camera's left, so a highlight shows."""
-    from addon.core.render import Environment
     from addon.blender.preview import write_environment
+    from addon.core.render import Environment
 
     s = np.array([-0.3, -0.8, 0.5]) / np.linalg.norm([-0.3, -0.8, 0.5])
     env = Environment.from_function(
@@ -85,8 +85,8 @@ def lambert_as_lobe(sample_table):
 
 
 def test_osl_shaders_compile_under_the_bpy_wheel(bpy, scene, tmp_path):
-    from addon.blender.preview import compile_shader, osl_available
     from addon.blender.compat import node_tree
+    from addon.blender.preview import compile_shader, osl_available
     from addon.blender.preview.osl import SHADERS, script_node
 
     assert osl_available() == (True, "")
@@ -145,9 +145,9 @@ def test_osl_diffuse_closure_carries_kd(scene, sky, sample_table, tmp_path, bpy)
 @pytest.mark.parametrize("mode", ["model", "tabulated"])
 def test_osl_glossy_agrees_with_the_numpy_reference(mode, scene, sample_table, tmp_path, bpy):
     """Same view, map and BRDF in two renderers: the frames, the mapping and the measure agree."""
-    from addon.core.render import ModelBRDF, render_reference
     from addon.blender.preview import build_preview, load_environment, render_still, resolve_environment
     from addon.blender.preview.build import brdf_of, model_params
+    from addon.core.render import ModelBRDF, render_reference
 
     table = sample_table("ggx_glossy")
     env_path = resolve_environment("courtyard")
@@ -179,8 +179,8 @@ def highlight(img, layout, k):
 def test_larger_variance_gives_a_lower_blurrier_highlight(path, scene, sun, tmp_path, bpy):
     """The slider moved sigma2 from 0.004 to 0.016 (4x): the highlight of the sun must get
     lower and wider (its area roughly follows the variance) while the energy stays."""
-    from addon.core.render import MomentParams
     from addon.blender.preview import build_preview, render_still
+    from addon.core.render import MomentParams
 
     original = MomentParams((0.8,) * 3, (0.8,) * 3, (0.0,) * 3, 0.8, 1.3, -1.0, 0.004, (0.02,) * 3)
     edited = original.edited(sigma2=0.016)
@@ -205,8 +205,8 @@ def test_larger_variance_gives_a_lower_blurrier_highlight(path, scene, sun, tmp_
 
 
 def test_touching_one_of_ten_materials_rebakes_one(scene, sun, bpy):
-    from addon.core.render import BakeCache, MomentParams
     from addon.blender.preview import build_row, refresh_baked, set_source, source_of
+    from addon.core.render import BakeCache, MomentParams
 
     base = MomentParams((0.5,) * 3, (0.6,) * 3, (0.2,) * 3, 0.8, 1.3, -1.0, 0.02, (0.03,) * 3)
     params = [base.edited(strength=0.5 + 0.1 * k) for k in range(10)]

@@ -2,8 +2,6 @@
 
 import math
 
-from addon.core.truncated import CAP_FRACTION, variance_cap
-
 import numpy as np
 import pytest
 
@@ -26,6 +24,7 @@ from addon.core.render import (
 )
 from addon.core.render.envmap import direction_to_uv
 from addon.core.render.scene import interior_texels, texel_positions
+from addon.core.truncated import CAP_FRACTION, variance_cap
 
 A, B = 1.0, 0.5  # the sky L(d) = A + B d_z: irradiance E(n) = pi A + (2 pi / 3) B n_z
 

@@ -350,7 +350,7 @@ def test_an_operator_cache_with_changed_values_is_rebuilt(gold, tmp_path, stress
 
 
 def test_damaged_bake_cache_entries_are_baked_again(tmp_path, stress_log):
-    from addon.core.render import BakeCache, Environment, MomentParams, ModelBRDF
+    from addon.core.render import BakeCache, Environment, ModelBRDF, MomentParams
 
     env = Environment.constant((0.5, 0.6, 0.7))
     brdf = ModelBRDF(
@@ -651,7 +651,6 @@ def test_damaged_stored_profiles_are_refused_in_one_line(blender, stress_log):
     import base64
 
     from addon.blender.state import pack_profiles, unpack_profiles  # the module needs bpy (its property group)
-
     from addon.core.profiles import Profiles
 
     n = 4

@@ -60,18 +60,3 @@ def test_out_of_reach_keeps_the_mean_and_caps_the_variance():
     # The preview's lobe follows the same rule.
     mp, sp = truncated_params(np.array([-1.0]), np.array([0.3]))
     np.testing.assert_allclose([mp[0], sp[0]], [m[0], s[0]], rtol=1e-12)
-
-
-def test_edit_model_mode_and_the_preview_share_the_solver():
-    """Model mode's per-view targets are the moments of the lobe the preview draws for them."""
-    from addon.core.edit.targets import model_view_moments
-
-    loc, s2 = np.array([-1.0, -0.3, -1.5]), 0.3
-    mean, var, beyond = model_view_moments(loc, s2)
-    m, s = truncated_params(mean, np.full(3, s2))
-    mt, vt = T.moments(m, s)
-    np.testing.assert_allclose(mt, mean, atol=1e-9)
-    np.testing.assert_allclose(vt, var, rtol=1e-6)
-    # -0.3 holds 0.3; near the horizon the variance is capped, and such views are beyond the model.
-    assert var[1] == pytest.approx(s2) and not beyond[1]
-    assert var[0] < s2 and var[2] < var[0] and beyond[0] and beyond[2]

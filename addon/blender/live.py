@@ -92,8 +92,8 @@ def replace_sphere(mat, k, rgb, cov, label):
 
 def _job(mat):
     """What the worker needs, read on the main thread; None when there is no live preview."""
-    from ..core.nbrdf import source_exists
     from ..core.render import sphere_layout
+    from ..core.sources import source_exists
     from .preview import load_environment, resolve_environment
 
     state = mat.brdf_moments

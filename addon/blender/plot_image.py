@@ -207,6 +207,7 @@ def profile_plot(prof, fit=None, edited=None, width=900, height=780):
 REGION_FILL = (0.25, 0.42, 0.62)
 REGION_EDGE = (0.45, 0.7, 1.0)
 SLIDER_COLOUR = (1.0, 1.0, 1.0)
+HORIZON_COLOUR = (0.35, 0.85, 0.45)  # what the table re-fits to (the material's horizon curve)
 CLAMP_COLOUR = (1.0, 0.35, 0.3)
 CORRELATION_COLOUR = (0.7, 0.7, 0.7)
 
@@ -234,14 +235,19 @@ def _set_ranges(points, x_lo, x_hi, y_lo, y_hi):
     return x_lo, x_hi, y_lo, y_hi, pts[ok]
 
 
-def region_plot(region, slider=None, used=None, correlation_a=None, width=600, height=420, set_points=None):
+def region_plot(
+    region, slider=None, used=None, correlation_a=None, width=600, height=420, set_points=None, horizon=None
+):
     """The reachable region on the (mean slope, variance) plane, as RGBA float32 (row 0 on top).
 
     The region (filled, outlined), the correlation quadratic with coefficient ``correlation_a``
     (dashed), an analysed set's materials ``set_points`` ((mean slope, variance) pairs: small
     grey dots), the fitted point (orange), the sliders (white ring) and, when the sliders lie
-    outside, the nearest reachable point Apply will use (red, joined to the sliders). The
-    variance axis is logarithmic: regions span two decades."""
+    outside, the nearest reachable point Apply will use (red, joined to the sliders). ``horizon``
+    ((mean slopes, variances), the last point the sliders'): what the table re-fits to as the
+    variance request runs over its range at the sliders' mean slope, the material's own horizon
+    curve (SPEC §3), with the sliders' point on it (green). The variance axis is logarithmic:
+    regions span two decades."""
     from ..core.fits import LAMBERT_VARIANCE, correlation_curve
     from .plot_font import ADVANCE, draw_text, text_width
 
@@ -312,6 +318,11 @@ def region_plot(region, slider=None, used=None, correlation_a=None, width=600, h
     if slider and used and (abs(slider[0] - used[0]) > 1e-9 or abs(slider[1] - used[1]) > 1e-12):
         c.polyline(*px([slider[0], used[0]], [slider[1], used[1]]), CLAMP_COLOUR, width=1.0 * s)
         c.dot(*px(used[0], used[1]), CLAMP_COLOUR, radius=4.0 * s)
+    if horizon is not None:
+        hm, hs = (np.asarray(a, float) for a in horizon)
+        c.polyline(*px(hm[:-1], hs[:-1]), HORIZON_COLOUR, width=1.5 * s)
+        if np.isfinite(hm[-1]) and np.isfinite(hs[-1]):
+            c.dot(*px(hm[-1:], hs[-1:]), HORIZON_COLOUR, radius=3.5 * s)
     c.dot(*px(m_fit, s_fit), FIT_COLOUR, radius=4.0 * s)
     if slider:
         x, y = px(slider[0], slider[1])
@@ -321,6 +332,8 @@ def region_plot(region, slider=None, used=None, correlation_a=None, width=600, h
     c.clip = (0, 0, width - 1, height - 1)
     lx, ly = x0, 6 + line_h + 4
     items = [("fit", FIT_COLOUR), ("sliders", SLIDER_COLOUR), ("Apply uses", CLAMP_COLOUR)]
+    if horizon is not None:
+        items.append(("delivers", HORIZON_COLOUR))
     if correlation_a is not None and np.isfinite(correlation_a):
         items.append((f"correlation a={correlation_a:.3g}", CORRELATION_COLOUR))
     if n_set:

@@ -1,37 +1,19 @@
-"""Every bpy class of the extension, registered in one place (order matters: property
-groups before the types that point to them, operators before the panels that draw them)."""
+"""The glue's bpy classes and handlers, registered in one place. The extension's entry point
+(the top-level ``__init__.py``) gathers the operators, a floor above, and hands them in.
+
+Order matters: property groups before the types that point to them, operators before the
+panels that draw them."""
 
 import importlib
 
 import bpy
 
 from . import lifecycle, panel, state
-from ...operators import (
-    analyse,
-    apply_edit,
-    build_preview,
-    clear_set,
-    export,
-    load_merl,
-    load_set,
-    reset_sliders,
-    restore_material,
-    show_image,
-)
 
-OPERATORS = (
-    load_merl.BRDFMOMENTS_OT_load_merl,
-    analyse.BRDFMOMENTS_OT_analyse,
-    reset_sliders.BRDFMOMENTS_OT_reset_sliders,
-    apply_edit.BRDFMOMENTS_OT_apply_edit,
-    restore_material.BRDFMOMENTS_OT_restore_material,
-    export.BRDFMOMENTS_OT_export,
-    build_preview.BRDFMOMENTS_OT_build_preview,
-    show_image.BRDFMOMENTS_OT_show_image,
-    load_set.BRDFMOMENTS_OT_load_set,
-    clear_set.BRDFMOMENTS_OT_clear_set,
-)
-CLASSES = (*state.CLASSES, *OPERATORS, *panel.CLASSES)
+
+def classes(operators):
+    """Every class to register, in order: the state, then ``operators``, then the panels."""
+    return (*state.CLASSES, *operators, *panel.CLASSES)
 
 
 @bpy.app.handlers.persistent
@@ -78,13 +60,13 @@ PRELOAD = (
 )
 
 
-def register():
+def register(operators):
     for name in PRELOAD:
         importlib.import_module(name, __package__)
     # multiprocessing (the job runner's), imported here and not inside some later script run by
     # blender -P: its alias of that script's __main__ would crash Blender's exit (see lifecycle).
     lifecycle.import_multiprocessing()
-    for cls in CLASSES:
+    for cls in classes(operators):
         bpy.utils.register_class(cls)
     state.attach()
     if _file_loaded not in bpy.app.handlers.load_post:
@@ -95,7 +77,7 @@ def register():
 LAST_SHUTDOWN: dict = {}
 
 
-def unregister():
+def unregister(operators):
     if _file_loaded in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(_file_loaded)
     # Jobs, timers and threads first: none of them may reach for a class or property that is
@@ -103,5 +85,5 @@ def unregister():
     LAST_SHUTDOWN.clear()
     LAST_SHUTDOWN.update(lifecycle.shutdown())
     state.detach()
-    for cls in reversed(CLASSES):
+    for cls in reversed(classes(operators)):
         bpy.utils.unregister_class(cls)

@@ -190,6 +190,8 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     )
     # The reachable region per mode (JSON of core.edit.reach.ReachableRegion), from the analysis.
     region_data: bpy.props.StringProperty(options={"HIDDEN"})
+    # What Apply will deliver for the sliders as they stand (``refresh_announcement``), JSON.
+    announced_json: bpy.props.StringProperty(options={"HIDDEN"})
     # An analysed set shown on the region plot (Load Set): [[name, mu_slope, sigma2], ...] as
     # compact JSON, and the fits.json it came from (for the panel; never written to).
     set_data: bpy.props.StringProperty(options={"HIDDEN"})
@@ -203,6 +205,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     edit_warnings: bpy.props.StringProperty(name="Warnings")
     # The last edit's per-view figures (JSON of core.edit.fidelity.Fidelity.summary()).
     edit_fidelity: bpy.props.StringProperty(options={"HIDDEN"})
+    edit_report: bpy.props.StringProperty(options={"HIDDEN"})  # the last Apply's per-view promise (JSON)
     plot_caption: bpy.props.StringProperty(options={"HIDDEN"})  # the plot's y ranges, one chart a line
     preview_material: bpy.props.StringProperty(options={"HIDDEN"})  # the edited sphere's material
     preview_path: bpy.props.EnumProperty(
@@ -376,6 +379,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         self.mu_slope = clamp_mu(self.fit_mu_slope)
         self.sigma2 = clamp_sigma2(self.fit_sigma2)
         self.lock = False
+        self.refresh_announcement()
 
     def region(self):
         """The reachable region for the current mode, or None (not analysed, no lobe, damaged)."""
@@ -424,6 +428,38 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         mu_c, s2_c, _ = region.clamp(mu, s2)
         return (mu, s2), (mu_c, s2_c)
 
+    def announcement(self):
+        """The engine's ``Announcement`` for the sliders as they stand, or None (not analysed,
+        no lobe, damaged stored analysis): the same call Apply's edit makes first."""
+        from ..core.edit.solve import announce
+
+        prof, fit = self.profiles(), None
+        try:
+            fit = self.fit()
+            if prof is None or fit is None:
+                return None
+            return announce(prof, fit, self.slider_targets(), self.region())
+        except (ValueError, TypeError, KeyError):
+            return None
+
+    def refresh_announcement(self):
+        """Store what Apply will deliver (the panel draws it beside the sliders)."""
+        import json
+
+        plan = self.announcement() if self.analysed else None
+        if plan is None or None in plan.announced:
+            self.announced_json = ""
+            return
+        self.announced_json = json.dumps(
+            {
+                "mu_slope": plan.announced[0],
+                "sigma2": plan.announced[1],
+                "out_of_reach": plan.out_of_reach,
+                "clamped": plan.clamped,
+                "nothing_to_do": plan.nothing_to_do,
+            }
+        )
+
     def slider_targets(self):
         """The sliders as engine targets; a slider still at its fitted value stays exact.
         ValueError (one line naming the slider) for a value outside its declared range (a file
@@ -459,6 +495,7 @@ def _slider_moved(state):
     only gets new node inputs."""
     if not state.analysed:
         return
+    state.refresh_announcement()
     region_image(state.id_data, later=True)
     if state.preview_mode == "TABULATED":
         from . import live
@@ -526,6 +563,7 @@ def region_image(mat, later=False):
     slider, used = point if point else ((state.mu_slope, state.sigma2), None)
     corr = state.correlation_a
     points = [(m, s) for _, m, s in state.set_points()] or None
+    prof, fit, targets = state.profiles(), state.fit(), state.slider_targets()
 
     def draw():
         return region_plot(
@@ -536,9 +574,29 @@ def region_image(mat, later=False):
             width=REGION_PLOT_SIZE[0],
             height=REGION_PLOT_SIZE[1],
             set_points=points,
+            horizon=_horizon(prof, fit, targets, region, used or slider),
         )
 
     return draw_later(region_image_name(mat), draw, now=not later)
+
+
+def _horizon(prof, fit, targets, region, point):
+    """The material's horizon curve at the sliders' mean slope: what the table re-fits to for each
+    variance request of the region's grid, then the sliders' own point (SPEC §3); None without
+    an analysis."""
+    import dataclasses
+
+    from ..core.edit.targets import announced, view_targets
+
+    if prof is None or fit is None or fit.get("sigma2") is None:
+        return None
+    mus, s2s = [], []
+    t = dataclasses.replace(targets, lock=False)
+    for s2 in list(region.sigma2) + [point[1]]:
+        mu, var = announced(view_targets(prof, fit, t, point[0], float(s2)))
+        mus.append(np.nan if mu is None else mu)
+        s2s.append(np.nan if var is None else var)
+    return np.array(mus), np.array(s2s)
 
 
 CLASSES = (BRDFMomentsMaterial,)

@@ -11,6 +11,7 @@ and makes the joint fit (shared knots, per-material amplitudes) as cheap as one 
 from __future__ import annotations
 
 import math
+
 import numpy as np
 
 LAMBERT_VARIANCE = math.pi**2 / 12

@@ -11,6 +11,8 @@ from __future__ import annotations
 import os
 import unicodedata
 
+from .sources import parse_source
+
 _KEEP = set("-_.+ ()")
 # Names Windows reserves in every folder: a file called "con.binary" cannot be created there.
 _RESERVED = {"con", "prn", "aux", "nul", *(f"com{i}" for i in range(10)), *(f"lpt{i}" for i in range(10))}
@@ -26,8 +28,6 @@ def file_stem(path) -> str:
 def material_name(source) -> str:
     """A material's name from its source: NAME of ``FILE:NAME`` (a material of a Neural-BRDF
     weights set), else the file's stem."""
-    from .nbrdf import parse_source
-
     path, name = parse_source(os.fspath(source))
     return name or file_stem(path)
 

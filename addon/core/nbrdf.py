@@ -23,14 +23,15 @@ as for bad MERL files.
 
 from __future__ import annotations
 
-import os
 import hashlib
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from .merl import MAX_REFLECTANCE, N_CELLS, RES_PD, RES_TD, RES_TH, MerlError, MerlTable
 from .geometry import HALF_PI
+from .merl import MAX_REFLECTANCE, N_CELLS, RES_PD, RES_TD, RES_TH, MerlError, MerlTable
+from .sources import is_weights_source, parse_source
 
 # Bump when the decoded values change (position, clipping): cached tables then re-decode.
 DECODER_VERSION = 1
@@ -38,7 +39,6 @@ DECODER_VERSION = 1
 CHUNK = 1 << 16
 LAYER_KEYS = ("W1", "b1", "W2", "b2", "W3", "b3")
 _NPY_KEYS = {"W1": "fc1", "b1": "b1", "W2": "fc2", "b2": "b2", "W3": "fc3", "b3": "b3"}
-WEIGHT_SUFFIXES = (".npz", ".h5", ".hdf5")
 
 
 class WeightsError(MerlError):
@@ -269,12 +269,6 @@ def _groups(path):
     return groups
 
 
-def is_weights_source(path) -> bool:
-    """Whether ``path`` looks like a Neural-BRDF source (by suffix or folder), not a MERL file."""
-    path = os.fspath(path)
-    return os.path.isdir(path) or path.lower().endswith(WEIGHT_SUFFIXES)
-
-
 def list_materials(path) -> list[str]:
     """Names of the materials in a weights source (sorted)."""
     return sorted(_groups(path))
@@ -376,20 +370,6 @@ def decode(net: Network, path=None) -> MerlTable:
     return MerlTable(rho, valid, os.fspath(src) if src is not None else None, label=net.name)
 
 
-def parse_source(spec: str):
-    """Split ``FILE:NAME`` into (FILE, NAME) when FILE is a weights source; else (spec, None).
-
-    A plain path wins: a file literally named ``a.npz:x`` is read as that file.
-    """
-    spec = os.fspath(spec)
-    if os.path.exists(spec):
-        return spec, None
-    head, sep, tail = spec.rpartition(":")
-    if sep and head and tail and is_weights_source(head):
-        return head, tail
-    return spec, None
-
-
 def read_table(spec, material: str | None = None) -> MerlTable:
     """A material source as a MERL table: a MERL file, or a network (``FILE:NAME`` or ``material``).
 
@@ -407,16 +387,6 @@ def read_table(spec, material: str | None = None) -> MerlTable:
             f"a material name ({name!r}) was given, but this is not a weights file (.npz, .h5 or a folder of .npy)",
         )
     return read_merl(path)
-
-
-def source_exists(spec) -> bool:
-    """Whether the file (or folder) behind a source spec is there."""
-    return os.path.exists(parse_source(spec)[0])
-
-
-def source_file(spec) -> str:
-    """The file (or folder) behind a source spec: ``FILE`` of ``FILE:NAME``, else the spec."""
-    return parse_source(spec)[0]
 
 
 def _npy_material(path):

@@ -27,7 +27,7 @@ def _weights_specs(item, problems):
 
 def _qualify(paths):
     """Names per input; materials of different weights sets that share a name get the set's stem."""
-    from ..core.nbrdf import parse_source
+    from ..core.sources import parse_source
 
     names = [material_name(p) for p in paths]
     count = {}
@@ -49,7 +49,7 @@ def input_names(paths):
 
 def collect_inputs(items):
     """Expand folders to their .binary files, weights sets to their materials; (paths, problems)."""
-    from ..core.nbrdf import is_weights_source, parse_source
+    from ..core.sources import is_weights_source, parse_source
 
     paths, problems = [], []
     for item in items:
@@ -318,7 +318,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, 
     writer.writeheader()
     for row in summary_rows(profiles, fits["materials"]):
         writer.writerow({k: ("" if v is None else (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()})
-    from ..core.nbrdf import parse_source
+    from ..core.sources import parse_source
 
     inputs = [parse_source(p)[0] for p in paths]  # FILE:NAME reads FILE: that is the input to guard
     _publish(out_dir, inputs, docs, fits, buf.getvalue(), profiles if plots else None, workers)

@@ -24,15 +24,15 @@ GT_SPP = 8192
 def bench_artist(quick=False):
     import samples
 
-    from .bench_preview import _environment, _read_exr, ground_truth
+    from ..blender.live import upsample
     from ..core.fits import fit_material
     from ..core.merl import read_merl
     from ..core.principled import fit_principled
     from ..core.profiles import compute_profiles
     from ..core.render import MomentParams, TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
-    from ..blender.live import upsample
     from ..core.render.live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES
     from ..wheel import import_bpy
+    from .bench_preview import _environment, _read_exr, ground_truth
 
     bpy = import_bpy()
     from ..blender import material as artist

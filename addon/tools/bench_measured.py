@@ -121,6 +121,7 @@ def _analyze(inputs, out, floor):
 
 def bench_measured(quick=False):
     import samples
+
     from ..core import nbrdf
     from ..core.integrate import default_views, get_operator
     from ..core.profiles import ROBUST_MAX_ANGLE, ROBUST_PERCENTILE, diffuse_floor

@@ -85,6 +85,7 @@ def _environment(bpy):
     import glob
 
     import OpenEXR
+
     from ..core.render import Environment
 
     hits = glob.glob(
@@ -116,7 +117,7 @@ def reference_version():
 
 def ground_truth(layout, brdfs, env, tag, spp=GT_SPP):
     """(image, estimated relative RMSE of its own noise, seconds spent or 0 if cached)."""
-    from ..core.render import render_reference, relative_rmse
+    from ..core.render import relative_rmse, render_reference
 
     h = hashlib.sha256(f"gt:{spp}:{layout}:{reference_version()}".encode())
     for b in brdfs:
@@ -158,6 +159,7 @@ def _read_exr(bpy, path):
 
 def bench_preview(quick=False):
     import samples
+
     from ..core.merl import read_merl
     from ..core.render import (
         BakeCache,
@@ -357,6 +359,7 @@ def render_default_error(names=("ggx_glossy", "ggx_mirror"), extra=(("--path", "
     import tempfile
 
     import samples
+
     from ..core.merl import read_merl, write_merl
     from ..core.render import TableBRDF, normalized_rmse, relative_rmse, sphere_layout
     from ..wheel import import_bpy

@@ -10,7 +10,6 @@ import math
 import os
 import sys
 
-
 # render's default: the baked path at the panel's bake (core.render.live.FINAL_SAMPLES), and
 # what it measured against the converged reference (bench_preview.render_default_error; the
 # figures and the command are in BENCHMARKS.md).
@@ -35,8 +34,7 @@ class _Parser(argparse.ArgumentParser):
 def _guard(out, *inputs):
     """Refuse a bad destination before any work (atomic_path checks again when writing)."""
     from ..core.safeio import guard_output
-
-    from ..core.nbrdf import parse_source
+    from ..core.sources import parse_source
 
     # FILE:NAME (a material of a weights set) reads FILE: that is the input to protect.
     return guard_output(out, [parse_source(p)[0] for p in inputs if p])
@@ -67,7 +65,8 @@ def _progress(label, always=False):
 
 def _single_materials(specs):
     """A weights set named with no material is an error for commands that take materials one by one."""
-    from ..core.nbrdf import load_network, is_weights_source, parse_source
+    from ..core.nbrdf import load_network
+    from ..core.sources import is_weights_source, parse_source
 
     for spec in specs:
         path, name = parse_source(spec)
@@ -108,9 +107,9 @@ def cmd_profiles(args):
 
 
 def cmd_fit(args):
-    from .analyze import collect_inputs, input_names, load_profiles
     from ..core.atomic import write_json_atomic
     from ..core.fits import fit_set
+    from .analyze import collect_inputs, input_names, load_profiles
 
     _single_materials(args.files)
     paths, problems = collect_inputs(args.files)
@@ -173,9 +172,12 @@ def _rgb(text):
 def cmd_edit(args):
     from ..core.edit import EditTargets, edit
     from ..core.merl import write_merl
-    from ..core.nbrdf import parse_source, read_table
+    from ..core.nbrdf import read_table
+    from ..core.sources import parse_source
 
     _guard(args.out, args.file)
+    if args.report:
+        _guard(args.report, args.file, args.out)
     table = read_table(args.file)
     colour = args.alpha or (1.0, 1.0, 1.0)
     targets = EditTargets(
@@ -192,21 +194,28 @@ def cmd_edit(args):
         shown[:] = [done, total]
         bar(done, total)
 
-    prof = None
-    if args.floor != "min":
-        from ..core.profiles import compute_profiles
+    from ..core.profiles import compute_profiles
 
-        prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd
+    prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd; the report compares with it
     try:
         res = edit(table, targets, prof, progress=on_round if bar else None)
     finally:
         if bar and shown[0] < shown[1]:
             sys.stderr.write("\n")  # an error cut the rounds short: end the bar's line before it
     write_merl(res.table, args.out, source=parse_source(args.file)[0])
-    mu = "—" if res.achieved_mu_slope is None else f"{res.achieved_mu_slope:+.4f}"
-    s2 = "—" if res.achieved_sigma2 is None else f"{res.achieved_sigma2:.5f}"
-    print(f"target   mean slope {res.target_mu_slope:+.4f}  variance {res.target_sigma2:.5f}")
-    print(f"achieved mean slope {mu}  variance {s2}")
+    if args.report:
+        from ..core.atomic import write_json_atomic
+        from ..core.edit.fidelity import report
+
+        write_json_atomic(report(res, prof, table), args.report, (args.file,))
+    said = lambda v, fmt: "—" if v is None else format(v, fmt)  # noqa: E731
+    if res.requested is not None:
+        print(f"request   mean slope {said(res.requested[0], '+.4f')}  variance {said(res.requested[1], '.5f')}")
+    print(
+        f"announced mean slope {said(res.announced[0], '+.4f')}  variance {said(res.announced[1], '.5f')}"
+        + ("  (clamped: nothing to do)" if res.nothing_to_do else "  (clamped)" if res.clamped else "")
+    )
+    print(f"re-fit    mean slope {said(res.achieved_mu_slope, '+.4f')}  variance {said(res.achieved_sigma2, '.5f')}")
     print("largest directional albedo (r, g, b): " + ", ".join(f"{v:.4f}" for v in res.max_albedo))
     if res.region is not None:
         lo, hi = res.region.mu_range(res.target_sigma2)
@@ -350,6 +359,11 @@ def build_parser():
         help=f"target average variance ({L.RANGES['sigma2'].describe()}, up to pi^2/12)",
     )
     se.add_argument("--mode", choices=("warp", "model"), default="warp")
+    se.add_argument(
+        "--report",
+        help="also write the per-view promise and what the table re-measures to (JSON: theta_o, judged, "
+        "out_of_reach, clamped, announced, target and achieved per channel)",
+    )
     _floor_option(se)
     se.set_defaults(func=cmd_edit)
 
@@ -412,7 +426,9 @@ def build_parser():
     sb = sub.add_parser("bench", help="benchmark tables (run time against error)")
     sb.add_argument("--quick", action="store_true", help="fewer repetitions and views")
     sb.add_argument(
-        "--only", nargs="*", help="sections to run (closed, tables, memory, fits, edit, preview, measured, artist)"
+        "--only",
+        nargs="*",
+        help="sections to run (closed, tables, memory, fits, rule, edit, preview, measured, artist)",
     )
     sb.set_defaults(func=cmd_bench)
     return p

@@ -12,8 +12,8 @@ import time
 
 def _preflight(args, input_error):
     """Checks that need no Blender: the output's name and the guard against the inputs."""
-    from ..core.nbrdf import parse_source
     from ..core.safeio import guard_output
+    from ..core.sources import parse_source
 
     out = os.fspath(args.out)
     if os.path.splitext(out)[1].lower() not in (".png", ".exr"):

@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from ..compat import node_tree
 from ...core.merl import MerlTable, read_merl
-from ...core.render import BakeCache, MomentParams, ModelBRDF, TableBRDF, bake_key, sphere_layout
+from ...core.render import BakeCache, ModelBRDF, MomentParams, TableBRDF, bake_key, sphere_layout
+from ..compat import node_tree
 from . import osl as osl_path
 from . import scene as sc
 from .environment import load_environment, resolve_environment

@@ -25,8 +25,16 @@ from .reach import counted_views, view_reachable
 from .targets import RGB, ViewTargets
 
 SHAPE_MAX_VIEW = math.radians(60.0)
-# SPEC §6 tolerances.
-TOLERANCES = {"energy": 0.02, "variance_median": 0.02, "variance_worst": 0.10, "mean": 0.02, "shape": 0.10}
+# SPEC §6 tolerances; "far": energy moved beyond FAR_WIDTHS target widths of a view's lobe (§3).
+TOLERANCES = {
+    "energy": 0.02,
+    "variance_median": 0.02,
+    "variance_worst": 0.10,
+    "mean": 0.02,
+    "shape": 0.10,
+    "far": 0.01,
+}
+FAR_WIDTHS = 3.0
 MAX_EXCLUDED = 0.10  # views out of reach are listed, not counted, and must stay under this share
 
 
@@ -57,6 +65,7 @@ class ChannelFidelity:
 class Fidelity:
     channels: dict  # 'r', 'g', 'b' -> ChannelFidelity
     profiles: Profiles
+    far: float = float("nan")  # worst judged view's energy moved far from its lobe (``far_energy``)
 
     def worst(self, figure: str) -> float:
         vals = [getattr(c, figure) for c in self.channels.values()]
@@ -65,7 +74,11 @@ class Fidelity:
 
     def meets(self, tol=TOLERANCES) -> bool:
         """Every channel meets every figure, and out-of-reach views are under 10 % (SPEC §6)."""
-        return all(c.meets(tol) for c in self.channels.values()) and not self.excluded_fraction > MAX_EXCLUDED
+        return (
+            all(c.meets(tol) for c in self.channels.values())
+            and not self.excluded_fraction > MAX_EXCLUDED
+            and not self.far > tol["far"]
+        )
 
     @property
     def excluded_fraction(self) -> float:
@@ -74,6 +87,7 @@ class Fidelity:
 
     def summary(self) -> dict:
         out = {f: self.worst(f) for f in FIGURES}
+        out["far"] = self.far
         out["excluded"] = self.excluded_fraction
         out["meets"] = self.meets()
         return out
@@ -93,7 +107,7 @@ def summary_from_json(text: str):
         return None
     try:
         d = json.loads(text)
-        out = {k: float("nan") if d[k] is None else float(d[k]) for k in FIGURES + ("excluded",)}
+        out = {k: float("nan") if d.get(k) is None else float(d[k]) for k in FIGURES + ("far", "excluded")}
         out["meets"] = bool(d["meets"])
     except (ValueError, TypeError, KeyError):
         return None
@@ -125,11 +139,89 @@ def _worst(err, mask, theta):
     return float(e.max()), round(float(np.degrees(theta[k])), 1)
 
 
-def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) -> Fidelity:
+def out_of_reach(targets: ViewTargets, original: Profiles):
+    """(judged, reachable), both (V, 3): the views an edit is judged on (5-80 deg, >= 5 % of the
+    channel's peak target energy) and whether each view's target is in reach
+    (``reach.view_reachable`` against the measured moments)."""
+    theta = np.asarray(targets.theta_o, float)
+    reachable = view_reachable(
+        theta,
+        targets.mean,
+        targets.var_tt,
+        targets.var_pp,
+        _stack(original, "mu_theta"),
+        0.5 * (_stack(original, "sigma_tt") + _stack(original, "sigma_pp")),
+    )
+    return counted_views(theta, targets.alpha), reachable
+
+
+_FAR_GEOMETRY: dict = {}
+_FAR_SOURCE: dict = {}
+
+
+def _far_geometry(op):
+    """Per (view, cell) pair of the operator: view index, centroid (x, phi) and weight, as
+    float32 arrays kept for the operator's lifetime (the far-energy check reads them per edit)."""
+    if _FAR_GEOMETRY.get("op") is not op:
+        offsets = np.asarray(op.offsets)
+        _FAR_GEOMETRY.clear()
+        _FAR_GEOMETRY.update(
+            op=op,
+            view=np.repeat(np.arange(len(offsets) - 1, dtype=np.int32), np.diff(offsets)),
+            x=np.ascontiguousarray(op.centroid[:, 0], dtype=np.float32),
+            phi2=np.ascontiguousarray(op.centroid[:, 1], dtype=np.float32) ** 2,
+            w0=np.ascontiguousarray(op.weights[:, 0], dtype=np.float32),
+            cells=np.ascontiguousarray(op.cells, dtype=np.int32),
+        )
+    return _FAR_GEOMETRY
+
+
+def far_energy(edited, source, targets: ViewTargets, original: Profiles) -> np.ndarray:
+    """(V,) per view, the share of the edited slice's energy (average channel's specular part)
+    lying more than FAR_WIDTHS target widths from the target lobe, less the share the source
+    slice had beyond as many of its own measured widths: energy the edit moved far from the lobe
+    (SPEC §3's shape rule). Each cell part's centroid (the operator's) places it; the width is
+    the average channel's average variance (target, or measured for the source)."""
+    from ..integrate import get_operator
+    from ..profiles import specular_part
+
+    theta = np.asarray(targets.theta_o, float)
+    op = get_operator(theta)
+    g = _far_geometry(op)
+    kd = original.kd if original.split else np.zeros(3)
+    cells = g["cells"]
+    p = original["avg"]
+    measured_var = 0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float))
+
+    def share(table, mean, var):
+        values = specular_part(table, kd, original.split, dtype=np.float32)[1][cells] * g["w0"]
+        centre = (np.nan_to_num(mean) + theta).astype(np.float32)[g["view"]]
+        limit = (FAR_WIDTHS**2 * np.maximum(np.nan_to_num(var, nan=1.0), 1e-12)).astype(np.float32)[g["view"]]
+        far = (g["x"] - centre) ** 2 + g["phi2"] > limit
+        n = len(theta)
+        total = np.bincount(g["view"], weights=values, minlength=n)
+        beyond = np.bincount(g["view"], weights=np.where(far, values, 0.0), minlength=n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(total > 0, beyond / total, 0.0)
+
+    # The source's own share depends on the source alone: kept (one entry, holding the objects
+    # themselves, so an identity cannot be reused by another table) for the next edit of it.
+    kept = _FAR_SOURCE.get("key")
+    if kept is not None and kept[0] is source and kept[1] is original:
+        before = _FAR_SOURCE["before"]
+    else:
+        before = share(source, np.asarray(p["mu_theta"], float), measured_var)
+        _FAR_SOURCE.update(key=(source, original), before=before)
+    return np.maximum(share(edited, targets.avg_mean, targets.avg_var) - before, 0.0)
+
+
+def measure(edited, targets: ViewTargets, original: Profiles, reachable=None, tables=None) -> Fidelity:
     """Per-view fidelity of ``edited`` (a MerlTable or its Profiles, measured with the original's kd).
 
     ``original`` gives the measured means and variances the reach test compares against;
-    ``reachable`` (V, 3) overrides the reach test."""
+    ``reachable`` (V, 3) overrides the reach test. With ``tables`` (the edited table, the table
+    it was made from), the energy moved far from each judged view's lobe is measured too
+    (``far_energy``)."""
     if isinstance(edited, Profiles):
         prof = edited
     else:
@@ -137,18 +229,8 @@ def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) ->
             edited, original.theta_o, kd=original.kd if original.split else None, split=original.split
         )
     theta = np.asarray(targets.theta_o, float)
-    counted = counted_views(theta, targets.alpha)
-    if reachable is None:
-        reachable = view_reachable(
-            theta,
-            targets.mean,
-            targets.var_tt,
-            targets.var_pp,
-            _stack(original, "mu_theta"),
-            0.5 * (_stack(original, "sigma_tt") + _stack(original, "sigma_pp")),
-        )
-    if targets.beyond is not None:
-        reachable = reachable & ~targets.beyond
+    counted, reach = out_of_reach(targets, original)
+    reachable = reach if reachable is None else reachable
     use = counted & reachable
     alpha = np.nan_to_num(_stack(prof, "alpha"))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -184,4 +266,88 @@ def measure(edited, targets: ViewTargets, original: Profiles, reachable=None) ->
         vm = float(np.median(e_var[u, i])) if u.any() else float("nan")
         excluded = [round(float(d), 1) for d in np.degrees(theta[counted[:, i] & ~reachable[:, i]])]
         channels[ch] = ChannelFidelity(ch, int(u.sum()), en, vm, vw, mn, sh, excluded, where)
-    return Fidelity(channels, prof)
+    far = float("nan")
+    if tables is not None and use.any():
+        far = float(far_energy(tables[0], tables[1], targets, original)[use.any(axis=1)].max())
+    return Fidelity(channels, prof, far)
+
+
+def _clean(a):
+    """A list for JSON: NaN/inf become null (SPEC §7: never a NaN in a JSON)."""
+    return [float(v) if math.isfinite(v) else None for v in np.asarray(a, float).ravel()]
+
+
+def _per_channel(rgb, avg):
+    out = {ch: _clean(rgb[:, i]) for i, ch in enumerate(RGB)}
+    out["avg"] = _clean(avg)
+    return out
+
+
+def _target_shape(vt: ViewTargets, original: Profiles):
+    """(skewness, kurtosis) targets, theta axis, per channel and average: warp mode keeps the
+    measured ones; model mode's lobe is a clipped Gaussian, whose own are closed forms."""
+    if vt.shape is not None:
+        p = original["avg"]
+        return (
+            (vt.shape["skew_30"], np.asarray(p["skew_30"], float)),
+            (vt.shape["kurt_40"], np.asarray(p["kurt_40"], float)),
+        )
+    from .. import truncated
+
+    centre, width, _ = truncated.solve(vt.avg_mean, vt.avg_var)
+    _, c2, c3, c4, _ = truncated.z_moments(centre, width)
+    skew, kurt = c3 / c2**1.5, c4 / c2**2 - 3.0
+    rep = lambda a: np.repeat(a[:, None], 3, axis=1)  # noqa: E731
+    return (rep(skew), skew), (rep(kurt), kurt)
+
+
+def report(result, original: Profiles, source=None) -> dict:
+    """The promise and what the written table re-measures to, per view (SPEC §3, ``edit --report``
+    and Export): anyone can check an edit without the extension. Angles in radians; ``variance``
+    is (Sigma_tt + Sigma_pp) / 2, ``skewness``/``kurtosis`` the theta axis's standardized
+    (excess) ones; each per channel ``r``, ``g``, ``b`` and ``avg``; null where undefined."""
+    vt = result.targets
+    got = result.profiles
+    if got is None:
+        got = compute_profiles(
+            result.table, original.theta_o, kd=original.kd if original.split else None, split=original.split
+        )
+    judged, reach = out_of_reach(vt, original)
+    (skew_t, skew_t_avg), (kurt_t, kurt_t_avg) = _target_shape(vt, original)
+    a = lambda key, ch="avg": np.asarray(got[ch][key], float)  # noqa: E731
+    var = lambda ch: 0.5 * (a("sigma_tt", ch) + a("sigma_pp", ch))  # noqa: E731
+    fid = result.fidelity.summary() if result.fidelity is not None else None
+    num = lambda v: None if v is None or not math.isfinite(v) else float(v)  # noqa: E731
+    return {
+        "theta_o": _clean(vt.theta_o),
+        "mode": vt.mode,
+        "judged": [bool(v) for v in judged.any(axis=1)],
+        "out_of_reach": [bool(v) for v in (judged & ~reach).any(axis=1)],
+        "clamped": bool(result.clamped),
+        "nothing_to_do": bool(result.nothing_to_do),
+        "requested": dict(zip(("mu_slope", "sigma2"), map(num, result.requested or (None, None)))),
+        "announced": dict(zip(("mu_slope", "sigma2"), map(num, result.announced))),
+        "refit": {"mu_slope": num(result.achieved_mu_slope), "sigma2": num(result.achieved_sigma2)},
+        "target": {
+            "alpha": _per_channel(vt.alpha, vt.alpha.mean(axis=1)),
+            "mu_theta": _per_channel(vt.mean, vt.avg_mean),
+            "variance": _per_channel(vt.variance, vt.avg_var),
+            "skewness": _per_channel(skew_t, skew_t_avg),
+            "kurtosis": _per_channel(kurt_t, kurt_t_avg),
+        },
+        "achieved": {
+            key: {**{ch: _clean(f(ch)) for ch in RGB}, "avg": _clean(f("avg"))}
+            for key, f in (
+                ("alpha", lambda ch: a("alpha", ch)),
+                ("mu_theta", lambda ch: a("mu_theta", ch)),
+                ("variance", var),
+                ("skewness", lambda ch: a("skew_30", ch)),
+                ("kurtosis", lambda ch: a("kurt_40", ch)),
+            )
+        },
+        "far": None if source is None else _clean(far_energy(result.table, source, vt, original)),
+        "figures": None if fid is None else {k: (v if isinstance(v, bool) else num(v)) for k, v in fid.items()},
+        # A clamp back to the fit changed nothing: that is never a met edit (SPEC §3).
+        "meets": bool(fid is not None and fid["meets"] and not result.nothing_to_do),
+        "tolerances": dict(TOLERANCES),
+    }

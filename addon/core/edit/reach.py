@@ -167,7 +167,7 @@ class ReachableRegion:
 
 def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableRegion:
     """The region for one material's profiles and fit (warp or model targets)."""
-    from .targets import EditTargets, model_view_moments, view_targets
+    from .targets import EditTargets, follow_lobe, model_lobe, profile_lobes, view_targets
 
     theta = np.asarray(prof.theta_o, float)
     s0, m0 = float(fit["sigma2"]), float(fit["mu_slope"])
@@ -177,26 +177,21 @@ def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableR
     mus = np.linspace(min(-1.0, m0) - 0.05, max(0.0, m0), n_mu)
     base = view_targets(prof, fit, EditTargets(mode=mode), m0, s0)
     counted = counted_views(theta, base.alpha)
-    if base.beyond is not None:
-        # Views the model cannot show even at the material's own fit are the model's limit,
-        # not the slider's: they do not count toward the region.
-        counted = counted & ~base.beyond
     # The reach test compares with what the table holds now: the measured means and variances.
     st = lambda k: np.stack([np.asarray(prof[c][k], float) for c in "rgb"], axis=1)  # noqa: E731
     mm, mv = st("mu_theta"), 0.5 * (st("sigma_tt") + st("sigma_pp"))
     lo, hi = np.full(len(grid), np.nan), np.full(len(grid), np.nan)
     n = counted.sum()
+    lobes = profile_lobes(prof)
     for k, s2 in enumerate(grid):
-        vt = view_targets(prof, fit, EditTargets(mode=mode), m0, s2)
         # All mean slopes at once: (mu, V, C).
         if mode == "warp":
-            mean = vt.mean[None] + (mus - m0)[:, None, None] * theta[None, :, None]
-            var_tt, var_pp, beyond = vt.var_tt[None], vt.var_pp[None], False
+            mean, var_tt, var_pp = follow_lobe(lobes, s2 / s0, (mus - m0)[:, None, None])
         else:
-            mean, var, beyond = model_view_moments(mus[:, None] * theta[None, :], s2, fast=True)
-            mean, var, beyond = (np.repeat(a[..., None], 3, axis=-1) for a in (mean, var, beyond))
-            var_tt = var_pp = var
-        r = view_reachable(theta, mean, var_tt, var_pp, mm[None], mv[None]) & ~beyond
+            mean, var = model_lobe(theta[None, :], m0, s0, mus[:, None], s2)
+            mean, var_tt = np.repeat(mean[..., None], 3, axis=-1), np.repeat(var[..., None], 3, axis=-1)
+            var_pp = var_tt
+        r = view_reachable(theta, mean, var_tt, var_pp, mm[None], mv[None])
         ok_rows = (n > 0) & ((r & counted[None]).sum(axis=(1, 2)) >= MIN_REACHABLE * n)
         if ok_rows.any():
             lo[k], hi[k] = mus[ok_rows].min(), mus[ok_rows].max()

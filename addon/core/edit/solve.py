@@ -19,7 +19,7 @@ from ..profiles import Profiles, compute_profiles
 from . import reciprocal as R
 from .fidelity import Fidelity, measure
 from .reach import ReachableRegion, reachable_region
-from .targets import EditTargets, ViewTargets, resolve_targets, view_targets
+from .targets import EditTargets, ViewTargets, announced, resolve_targets, view_targets
 
 
 @dataclass
@@ -38,6 +38,9 @@ class EditResult:
     requested: tuple | None = None  # (mu, sigma2) before clamping
     timings: dict = field(default_factory=dict)  # seconds: synthesis, remeasure
     reused: bool = False  # the synthesis was a kept one (``edit(..., keep=True)``), not solved again
+    targets: ViewTargets | None = None  # the per-view promise the table was made for
+    announced: tuple = (None, None)  # (mu~, sigma~^2) the targets re-fit to: what the panel showed
+    nothing_to_do: bool = False  # the request was clamped back to the fit: no edit was made
 
     @property
     def energy_gain(self) -> bool:
@@ -93,17 +96,11 @@ def warm(theta_o):
     R._cell_geometry(SOLVE_DTYPE)
 
 
-def _avg_goals(prof: Profiles, fit: dict, vt: ViewTargets):
+def _avg_goals(prof: Profiles, vt: ViewTargets):
     """The average channel's per-view goals: energy, mean about the mirror, average variance."""
     theta = np.asarray(prof.theta_o, float)
     alpha = vt.alpha.mean(axis=1)
-    p = prof["avg"]
-    if vt.mode == "model":
-        mean = vt.mu_slope * theta
-        var = np.full_like(theta, vt.sigma2)
-    else:
-        mean = np.asarray(p["mu_theta"], float) + (vt.mu_slope - fit["mu_slope"]) * theta
-        var = 0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float)) * vt.sigma2 / fit["sigma2"]
+    mean, var = vt.avg_mean, vt.avg_var
     return alpha, np.nan_to_num(mean + theta), np.maximum(np.nan_to_num(var, nan=LAMBERT_VARIANCE), 1e-12)
 
 
@@ -130,7 +127,7 @@ def synthesize(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets, dra
         0.5 * (np.asarray(p["sigma_tt"], float) + np.asarray(p["sigma_pp"], float)), nan=LAMBERT_VARIANCE
     )
     ring_var = np.interp(ring_centres, theta, measured_var)
-    goal_e, goal_mx, goal_v = _avg_goals(prof, fit, vt)
+    goal_e, goal_mx, goal_v = _avg_goals(prof, vt)
     weight = _weights(theta, goal_e)
     # (Out-of-reach views are not down-weighted by the reach test: a yes/no weight would make the
     # map from sliders to tables jump as a view crosses the boundary. The robust loss tames them.)
@@ -181,7 +178,7 @@ def _synthesis_key(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets)
     import hashlib
 
     h = hashlib.blake2b(digest_size=20)
-    for a in (table.rho, table.valid, prof.theta_o, prof.kd, vt.theta_o, vt.alpha, vt.mean, vt.var_tt, vt.var_pp):
+    for a in (table.rho, table.valid, prof.theta_o, prof.kd, vt.theta_o, vt.alpha, vt.avg_mean, vt.avg_var):
         a = np.ascontiguousarray(a)
         h.update(repr((a.dtype.str, a.shape)).encode())
         h.update(a.data)
@@ -189,15 +186,6 @@ def _synthesis_key(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets)
         h.update(np.ascontiguousarray(prof["avg"][k], "<f8").data)
     h.update(repr((prof.split, fit.get("mu_slope"), fit.get("sigma2"), vt.mode, vt.mu_slope, vt.sigma2)).encode())
     return h.hexdigest()
-
-
-def _view_reach(prof, vt):
-    from .reach import view_reachable
-
-    st = lambda k: np.stack([np.asarray(prof[c][k], float) for c in "rgb"], axis=1)  # noqa: E731
-    return view_reachable(
-        vt.theta_o, vt.mean, vt.var_tt, vt.var_pp, st("mu_theta"), 0.5 * (st("sigma_tt") + st("sigma_pp"))
-    )
 
 
 def directional_albedo(table: MerlTable, views=None, stride: int = 1) -> np.ndarray:
@@ -249,9 +237,9 @@ SIGMA2_TOLERANCE = 0.02
 def _target_note(achieved_mu, achieved_s2, mu_t, s2_t):
     """One warning naming each fitted slider value the written table misses, or None."""
     misses = []
-    if achieved_mu is not None and abs(achieved_mu - mu_t) > MU_TOLERANCE:
+    if achieved_mu is not None and mu_t is not None and abs(achieved_mu - mu_t) > MU_TOLERANCE:
         misses.append(f"mean slope {achieved_mu:+.3f} for {mu_t:+.3f}")
-    if achieved_s2 is not None and abs(achieved_s2 - s2_t) > SIGMA2_TOLERANCE * s2_t:
+    if achieved_s2 is not None and s2_t is not None and abs(achieved_s2 - s2_t) > SIGMA2_TOLERANCE * s2_t:
         misses.append(f"variance {achieved_s2:.4g} for {s2_t:.4g}")
     if not misses:
         return None
@@ -269,16 +257,18 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **
     achieved_mu = achieved_s2 = None
     new_prof = fid = None
     timings = extra.pop("timings", {})
+    source = extra.pop("source", None)  # the table edited: for the energy moved far from the lobes
     if remeasure:
         t0 = time.perf_counter()
         new_prof = compute_profiles(out, prof.theta_o, kd=prof.kd if prof.split else None, split=prof.split)
         f = fit_material(new_prof)
         achieved_mu, achieved_s2 = f["mu_slope"], f["sigma2"]
-        miss = _target_note(achieved_mu, achieved_s2, mu_t, s2_t)
+        said_mu, said_s2 = extra.get("announced") or (mu_t, s2_t)
+        miss = _target_note(achieved_mu, achieved_s2, said_mu, said_s2)
         if miss:
             warnings.append(miss)
         if vt is not None:
-            fid = measure(new_prof, vt, prof)
+            fid = measure(new_prof, vt, prof, tables=None if source is None else (out, source))
             note = _energy_note(new_prof, vt)
             if note:
                 warnings.append(note)
@@ -286,6 +276,53 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **
     return EditResult(
         out, mu_t, s2_t, achieved_mu, achieved_s2, albedo, warnings, new_prof, fid, timings=timings, **extra
     )
+
+
+@dataclass
+class Announcement:
+    """What an edit will deliver, known before any synthesis (the panel shows it beside the
+    sliders; ``edit`` makes the table from the same point, so the two cannot disagree)."""
+
+    requested: tuple  # (mu~, sigma~^2) as set (resolved into the slider ranges)
+    point: tuple  # the point the targets are made for: the request, or the region's nearest point
+    clamped: bool
+    announced: tuple  # (mu~, sigma~^2) the targets re-fit to
+    out_of_reach: float  # share of the judged views whose target is out of reach
+    targets: ViewTargets
+    warnings: list
+    fitted: tuple  # the material's own (mu~, sigma~^2)
+    region: ReachableRegion | None = None
+
+    @property
+    def nothing_to_do(self) -> bool:
+        """Clamped back onto the material's own fit: the edit would change nothing (never 'met')."""
+        return self.clamped and self.point == self.fitted
+
+
+def announce(prof: Profiles, fit: dict, targets: EditTargets, region: ReachableRegion | None = None) -> Announcement:
+    """Resolve the sliders, clamp them into the region (edits that move mu~ or sigma~^2), make the
+    per-view targets and say what they re-fit to and how many judged views are out of reach."""
+    from .fidelity import out_of_reach
+
+    if fit.get("mu_slope") is None or fit.get("sigma2") is None:
+        raise ValueError("the material has no specular lobe to edit (all its energy is in kd)")
+    mu, s2, warnings = resolve_targets(targets, fit)
+    requested, clamped = (mu, s2), False
+    if not targets.is_identity() and not targets.is_energy_only():
+        if region is None:
+            region = reachable_region(prof, fit, mode=targets.mode)
+        mu_c, s2_c, clamped = region.clamp(mu, s2)
+        if clamped:
+            warnings.append(
+                f"mean slope {mu:+.3f} and variance {s2:.4g} lie outside what a reciprocal table of "
+                f"this material can show: clamped to the nearest reachable point ({mu_c:+.3f}, {s2_c:.4g})"
+            )
+            mu, s2 = mu_c, s2_c
+    vt = view_targets(prof, fit, targets, mu, s2)
+    judged, reach = out_of_reach(vt, prof)
+    share = float((judged & ~reach).sum() / max(int(judged.sum()), 1))
+    fitted = (float(fit["mu_slope"]), float(fit["sigma2"]))
+    return Announcement(requested, (mu, s2), clamped, announced(vt), share, vt, warnings, fitted, region)
 
 
 def edit(
@@ -317,13 +354,23 @@ def edit(
         fit = fit_material(prof)
     if fit.get("mu_slope") is None or fit.get("sigma2") is None:
         raise ValueError(f"{table.name}: the material has no specular lobe to edit (all its energy is in kd)")
-    mu_t, s2_t, warnings = resolve_targets(targets, fit)
     tell = progress or (lambda done, total: None)
-    if targets.is_identity():
+    t0 = time.perf_counter()
+    plan = announce(prof, fit, targets, region)
+    (mu_t, s2_t), vt, warnings = plan.point, plan.targets, plan.warnings
+    said = {"targets": vt, "announced": plan.announced, "requested": plan.requested, "source": table}
+    if targets.is_identity() or plan.nothing_to_do:
+        if plan.nothing_to_do:
+            warnings.append("nothing to do: the request was clamped back to the material's own fit")
         out = table.copy()
         out.path = None
-        vt = view_targets(prof, fit, targets, mu_t, s2_t)
-        res = _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt)
+        res = (
+            _finish(
+                out, mu_t, s2_t, warnings, prof, remeasure, vt, **said, clamped=True, nothing_to_do=plan.nothing_to_do
+            )
+            if plan.nothing_to_do
+            else _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt, **said)
+        )
         tell(1, 1)
         return res
     if targets.is_energy_only():
@@ -332,23 +379,11 @@ def edit(
         spec = np.maximum(table.rho - kd[:, None], 0.0)
         gain = targets.strength * np.asarray(targets.colour, float)[:, None]
         rho = np.where(table.valid, np.minimum(table.rho, kd[:, None]) + gain * spec, 0.0)
-        vt = view_targets(prof, fit, targets, mu_t, s2_t)
-        res = _finish(MerlTable(rho, table.valid.copy(), None), mu_t, s2_t, warnings, prof, remeasure, vt)
+        res = _finish(MerlTable(rho, table.valid.copy(), None), mu_t, s2_t, warnings, prof, remeasure, vt, **said)
         tell(1, 1)
         return res
-    t0 = time.perf_counter()
-    if region is None:
-        region = reachable_region(prof, fit, mode=targets.mode)
-    requested = (mu_t, s2_t)
-    mu_c, s2_c, clamped = region.clamp(mu_t, s2_t)
-    if clamped:
-        warnings.append(
-            f"mean slope {mu_t:+.3f} and variance {s2_t:.4g} lie outside what a reciprocal table of "
-            f"this material can show: clamped to the nearest reachable point ({mu_c:+.3f}, {s2_c:.4g})"
-        )
-        mu_t, s2_t = mu_c, s2_c
+    region, clamped = plan.region, plan.clamped
     tell(1, 3)
-    vt = view_targets(prof, fit, targets, mu_t, s2_t)
     t_reg = time.perf_counter() - t0
     key = _synthesis_key(table, prof, fit, vt) if keep and not draft else None
     kept = _KEPT.get(key) if key is not None else None
@@ -373,9 +408,9 @@ def edit(
         draft=draft,
         region=region,
         clamped=clamped,
-        requested=requested,
         timings={"synthesis": t_syn, "region": t_reg},
         reused=kept is not None,
+        **said,
     )
     tell(3, 3)
     return res
@@ -383,23 +418,17 @@ def edit(
 
 def scale_to_albedo(result: EditResult, limit: float = 1.0) -> EditResult:
     """Scale the edited table down so its largest directional albedo is ``limit`` (kd too)."""
+    import dataclasses
+
     peak = float(result.max_albedo.max())
     if peak <= limit:
         return result
     f = limit / peak
-    t = MerlTable(result.table.rho * f, result.table.valid.copy(), None)
-    return EditResult(
-        t,
-        result.target_mu_slope,
-        result.target_sigma2,
-        result.achieved_mu_slope,
-        result.achieved_sigma2,
-        result.max_albedo * f,
-        [w for w in result.warnings if "reflects more" not in w],
-        result.profiles,
-        None,
-        result.region,
-        result.clamped,
-        result.requested,
-        dict(result.timings),
+    return dataclasses.replace(
+        result,
+        table=MerlTable(result.table.rho * f, result.table.valid.copy(), None),
+        max_albedo=result.max_albedo * f,
+        warnings=[w for w in result.warnings if "reflects more" not in w],
+        fidelity=None,
+        timings=dict(result.timings),
     )

@@ -6,20 +6,16 @@ follow the sliders. ``view_targets`` turns the sliders into those per-view, per-
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, correlation_curve, energy_curve
-from ..geometry import HALF_PI
+from .. import truncated
+from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, correlation_curve, energy_curve, fit_mean_slope, fit_variance
 from ..profiles import Profiles
-from ..truncated import CAP_FRACTION, reachable_variance, variance_cap_fast
 
 MODES = ("warp", "model")
-# Model mode's mean is kept this far (relative) inside the horizon: a mean on the edge has no spread.
-MODEL_EDGE = 0.02
-# A model view is beyond the model when the truncation caps its variance by more than this.
-BEYOND_MODEL = 0.01
 RGB = ("r", "g", "b")
 
 
@@ -123,7 +119,9 @@ class ViewTargets:
     """Per view and channel (r, g, b): what the edited table's re-measured slice must show.
 
     ``shape`` holds the standardized moments to keep (warp mode: the measured ones), or None
-    (model mode: the model's lobe has its own shape)."""
+    (model mode: the model's lobe has its own shape). ``avg_mean``/``avg_var`` are the same rule
+    applied to the average channel's profiles (what the synthesis steers on and the announced
+    sliders are fitted to)."""
 
     theta_o: np.ndarray  # (V,)
     alpha: np.ndarray  # (V, 3)
@@ -132,11 +130,10 @@ class ViewTargets:
     var_pp: np.ndarray  # (V, 3)
     shape: dict | None  # key -> (V, 3): skew_30, skew_03, kurt_40, kurt_04 (excess)
     mode: str = "warp"
-    mu_slope: float = 0.0  # the sliders as resolved
+    mu_slope: float = 0.0  # the sliders as resolved (the request)
     sigma2: float = 0.0
-    # (V, 3) model mode: views where the model's own lobe cannot have the slider's variance (its
-    # mean too near the horizon): listed as out of reach, not counted. None in warp mode.
-    beyond: np.ndarray | None = None
+    avg_mean: np.ndarray | None = None  # (V,) average channel
+    avg_var: np.ndarray | None = None  # (V,) average channel, (var_tt + var_pp) / 2
 
     @property
     def variance(self):
@@ -151,41 +148,132 @@ def _stack(prof, key):
     return np.stack([np.asarray(prof[ch][key], float) for ch in RGB], axis=1)
 
 
-def model_view_moments(location, s2, fast=False):
-    """Model mode's per-view mean and variance for lobe locations mu~' theta_o and variance
-    sigma~^2' (any shape), and where the model cannot show that variance (``beyond``).
-    ``fast``: the truncated limit read off its fine grid (the region's scans over the plane)."""
-    mean = np.clip(location, -HALF_PI * (1.0 - MODEL_EDGE), HALF_PI * (1.0 - MODEL_EDGE))
-    if fast:
-        var = np.minimum(np.maximum(s2, 1e-14), CAP_FRACTION * variance_cap_fast(mean))
-    else:
-        var = reachable_variance(mean, s2)
-    return mean, var, var < (1.0 - BEYOND_MODEL) * s2
+@dataclass
+class Lobes:
+    """Each view's lobe read as a Gaussian truncated by the horizon (``read_lobes``): on theta
+    about its centre, on phi about 0, fitted to the measured mean and variances."""
+
+    theta_o: np.ndarray
+    mean: np.ndarray
+    var_tt: np.ndarray
+    var_pp: np.ndarray
+    ok: np.ndarray  # a lobe was measured there (finite, positive variances)
+    centre: np.ndarray
+    width: np.ndarray
+    width_phi: np.ndarray
+    clipped: tuple  # the fitted lobes' own clipped (mean, var_tt, var_pp)
+
+
+_LOBES: dict = {}
+
+
+def read_lobes(theta_o, mean, var_tt, var_pp) -> Lobes:
+    """Invert the truncated Gaussian (``truncated.solve``) at every view: the one slow step of the
+    rule, so it is kept per content (a few entries) and the edits only run the forward moments."""
+    import hashlib
+
+    arrays = np.broadcast_arrays(*(np.asarray(a, float) for a in (theta_o, mean, var_tt, var_pp)))
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        h.update(repr(a.shape).encode())
+        h.update(np.ascontiguousarray(a).data)
+    key = h.hexdigest()
+    if key in _LOBES:
+        return _LOBES[key]
+    theta, mean, var_tt, var_pp = arrays
+    ok = np.isfinite(mean) & np.isfinite(var_tt) & np.isfinite(var_pp) & (var_tt > 0) & (var_pp > 0)
+    m = np.where(ok, mean, 0.0)
+    vt, vp = np.where(ok, var_tt, 1.0), np.where(ok, var_pp, 1.0)
+    centre, width, _ = truncated.solve(m, vt)
+    _, width_phi, _ = truncated.solve(np.zeros_like(vp), vp)
+    m0, v0 = truncated.moments(centre, width)
+    _, w0 = truncated.moments(np.zeros_like(width_phi), width_phi)
+    lobes = Lobes(theta, mean, var_tt, var_pp, ok, centre, width, width_phi, (m0, v0, w0))
+    if len(_LOBES) >= 8:
+        _LOBES.pop(next(iter(_LOBES)))
+    _LOBES[key] = lobes
+    return lobes
+
+
+def follow_lobe(lobes: Lobes, ratio, shift):
+    """SPEC §3 "Targets follow physics": each view's moments after its *unclipped* lobe is edited.
+
+    The width of each view's lobe (``read_lobes``) is scaled by sqrt(``ratio``); its centre's
+    offset from the mirror (-theta_o), the pull of the material's smooth envelope on a lobe of
+    variance s^2, which is proportional to s^2, scales by ``ratio`` too; the centre then moves by
+    ``shift`` * theta_o. The lobe is clipped again, and the change of the clipped moments is
+    carried onto the measured ones (a difference for the mean, ratios for the variances), so an
+    identity edit returns the measured moments exactly. Far from the horizon a pure shift gives
+    mu + shift * theta_o and a pure scaling ratio * Sigma. ``ratio`` and ``shift`` broadcast
+    against the views (a leading axis scans many edits at once); NaN (no lobe) stays NaN."""
+    L = lobes
+    ratio = np.asarray(ratio, float)
+    scale = np.sqrt(ratio)
+    moved = -L.theta_o + (L.centre + L.theta_o) * ratio + np.asarray(shift, float) * L.theta_o
+    m1, v1 = truncated.moments(moved, L.width * scale)
+    _, w1 = truncated.moments(np.zeros_like(L.width_phi), L.width_phi * scale)
+    m0, v0, w0 = L.clipped
+    return (
+        np.where(L.ok, L.mean + (m1 - m0), np.nan),
+        np.where(L.ok, L.var_tt * (v1 / v0), np.nan),
+        np.where(L.ok, L.var_pp * (w1 / w0), np.nan),
+    )
+
+
+def profile_lobes(prof: Profiles, channel=None) -> Lobes:
+    """``read_lobes`` of r, g, b stacked (V, 3), or of one channel (V,)."""
+    theta = np.asarray(prof.theta_o, float)
+    if channel is None:
+        return read_lobes(theta[:, None], _stack(prof, "mu_theta"), _stack(prof, "sigma_tt"), _stack(prof, "sigma_pp"))
+    p = prof[channel]
+    return read_lobes(theta, p["mu_theta"], p["sigma_tt"], p["sigma_pp"])
+
+
+def model_lobe(theta_o, mu_fit, s2_fit, mu, s2):
+    """Model mode's per-view (mean, variance): the model's lobe (Eq. 7-8, centre mu~ theta_o, width
+    sigma~^2, unclipped) edited by the same rule as warp mode's lobes, then clipped by the horizon."""
+    theta_o = np.asarray(theta_o, float)
+    ratio = s2 / s2_fit
+    centre = -theta_o + (mu_fit + 1.0) * theta_o * ratio + (np.asarray(mu, float) - mu_fit) * theta_o
+    return truncated.moments(centre, np.full(centre.shape, math.sqrt(s2)))
 
 
 def view_targets(prof: Profiles, fit: dict, t: EditTargets, mu: float, s2: float) -> ViewTargets:
-    """The per-view targets of SPEC §3 for resolved sliders ``mu``, ``s2``.
+    """The per-view targets of SPEC §3 for resolved sliders ``mu``, ``s2`` (the request).
 
-    Warp: alpha' = s_c alpha (boost above alpha_b), mu' = mu + (mu~' - mu~) theta_o,
-    Sigma' = (s2' / s2) Sigma, shape kept. Model: the fitted spline, mu~' theta_o, s2' on both axes."""
+    Warp: alpha' = s_c alpha (boost above alpha_b); mean and variances by ``follow_lobe`` with the
+    sigma~^2 ratio and the mean-slope move; shape kept. Model: the fitted spline, and the model's
+    lobe edited by the same rule (``model_lobe``) on both axes."""
     theta = np.asarray(prof.theta_o, float)
     if t.mode == "model":
-        # The model's slice is a truncated Gaussian on [-pi/2, pi/2] (Eq. 8): its mean is mu~' theta_o
-        # kept inside the domain, and its variance sigma~^2' capped by the one truncated solver's
-        # rule (``truncated.reachable_variance``), as the moment-model preview draws it. Near the
-        # horizon no distribution has mu~' theta_o's mean with a wide variance.
-        mean, var, beyond = (np.repeat(a[:, None], 3, axis=1) for a in model_view_moments(mu * theta, s2))
-        return ViewTargets(theta, model_energy(prof, fit, t), mean, var, var, None, "model", mu, s2, beyond)
-    ratio = s2 / fit["sigma2"]
-    mean = _stack(prof, "mu_theta") + (mu - fit["mu_slope"]) * theta[:, None]
+        mean, var = model_lobe(theta, fit["mu_slope"], fit["sigma2"], mu, s2)
+        rep = lambda a: np.repeat(a[:, None], 3, axis=1)  # noqa: E731
+        return ViewTargets(
+            theta, model_energy(prof, fit, t), rep(mean), rep(var), rep(var), None, "model", mu, s2, mean, var
+        )
+    ratio, shift = s2 / fit["sigma2"], mu - fit["mu_slope"]
+    mean, var_tt, var_pp = follow_lobe(profile_lobes(prof), ratio, shift)
+    avg_mean, avg_tt, avg_pp = follow_lobe(profile_lobes(prof, "avg"), ratio, shift)
     return ViewTargets(
         theta,
         target_energy(prof, fit, t),
         mean,
-        _stack(prof, "sigma_tt") * ratio,
-        _stack(prof, "sigma_pp") * ratio,
+        var_tt,
+        var_pp,
         {k: _stack(prof, k) for k in SHAPE_KEYS},
         "warp",
         mu,
         s2,
+        avg_mean,
+        0.5 * (avg_tt + avg_pp),
     )
+
+
+def announced(vt: ViewTargets):
+    """(mu~, sigma~^2) the written table re-fits to when it meets its targets: the Sec. 3.4 fits
+    of the average channel's targets, the same fits Analyse makes of a material. The request is
+    what the artist sets; this is what the panel and the command line show beside it (SPEC §3:
+    when sigma~^2 moves, the re-fitted mu~ moves with it, along the material's horizon curve)."""
+    mu = fit_mean_slope(vt.theta_o, vt.avg_mean)["mu_slope"]
+    s2 = fit_variance(vt.theta_o, vt.avg_var, vt.avg_var)["sigma2"]
+    return (None if mu is None else float(mu)), (None if s2 is None else float(s2))
