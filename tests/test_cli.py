@@ -96,7 +96,7 @@ def test_missing_file_and_bad_options_exit_2(tmp_path):
     res = run("profiles", str(tmp_path / "none.binary"), "--out", str(tmp_path / "o.json"))
     assert res.returncode == 2 and "none.binary" in res.stderr and "Traceback" not in res.stderr
     res = run("profiles", str(tmp_path / "none.binary"), "--out", "x.json", "--max-elevation", "95")
-    assert res.returncode == 2 and "--max-elevation: must be between 0 and 89.99" in res.stderr
+    assert res.returncode == 2 and "--max-elevation: must be at most 89.99" in res.stderr
 
 
 @pytest.mark.slow

@@ -11,7 +11,7 @@ import bpy
 import numpy as np
 
 from ..core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
-from ..core.limits import MAX_ELEVATIONS, MU_SLOPE_RANGE, RANGES
+from ..core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE, MU_SLOPE_RANGE, RANGES
 from ..core.moments import CHANNELS, PROFILE_KEYS
 from .images import draw_later
 
@@ -258,7 +258,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         default="",
         description="a bundled HDRI name (empty: the default studio light) or an .exr/.hdr file of your own",
     )
-    preview_size: bpy.props.IntProperty(name="Size", default=256, min=16, max=RANGES["size"].high, subtype="PIXEL")
+    preview_size: bpy.props.IntProperty(name="Size", default=256, min=16, max=MAX_RENDER_SIZE, subtype="PIXEL")
     scale_to_one: bpy.props.BoolProperty(
         name="Scale albedo to 1",
         default=False,

@@ -97,8 +97,10 @@ class Range:
             raise ValueError(f"{label}: not a finite number: {value!r}")
         if self.integer and v != int(v):
             raise ValueError(f"{label}: not a whole number: {value!r}")
-        if not self.low <= v <= self.high:
-            raise ValueError(f"{label}: must be {self.describe()}, got {value!r}")
+        if v < self.low:
+            raise ValueError(f"{label}: must be at least {self.low:g} ({self.describe()}), got {value!r}")
+        if v > self.high:
+            raise ValueError(f"{label}: must be at most {self.high:g} ({self.describe()}), got {value!r}")
         return int(v) if self.integer else v
 
     def parse(self, text):
