@@ -107,6 +107,7 @@ def store_analysis(mat, path, result) -> str:
         state.edit_fidelity = ""
         state.edit_report = ""
         state.principled_data = ""
+        state.lobes_data = ""
     plot_image(mat, prof, fit, edited=None if again else False, later=True)
     region_image(mat, later=True)
     if fit.get("mu_slope") is not None:

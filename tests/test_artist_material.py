@@ -303,3 +303,144 @@ def test_osl_table_texture_next_to_the_blend_moves_with_it(artist):
         if n.bl_idname == "ShaderNodeScript"
     )
     assert os.path.samefile(script.inputs["Table"].default_value, moved / "brdf_moments" / written[0].name)
+
+
+def test_the_fitted_lobes_render_the_edit_and_keep_their_lookup_in_the_blend(artist):
+    """The lobe mixture (no OSL needed): plain nodes reading a packed lookup image; under a
+    constant sky a pixel is the directional albedo of its view, which the fit meets per view;
+    save, delete the lookup's file, reopen: the same pixels (same seed)."""
+    from addon.core.merl import read_merl
+    from addon.core.render import Environment, TableBRDF, relative_rmse, render_reference
+
+    bpy, mat, scene, layout, tmp = artist
+    before_tree = _tree(mat)
+    before = _render(bpy, scene, tmp / "before.exr")
+    state = mat.brdf_moments
+    state.artist_shader = "LOBES"
+    state.strength = 0.5
+    assert bpy.ops.brdf_moments.apply_edit(material="Artist") == {"FINISHED"}
+    assert state.artist_shader_used == "lobes"
+    fit = state.lobes_fit()
+    node = mat.node_tree.nodes["BRDF Moments edit"]
+    assert "GGX lobes" in node.label and f"{100 * fit.error:.1f} %" in node.label
+    group = node.node_tree
+    kinds = [n.bl_idname for n in group.nodes]
+    assert "ShaderNodeScript" not in kinds and "ShaderNodeBsdfPrincipled" not in kinds
+    glossy = [n for n in group.nodes if n.bl_idname in ("ShaderNodeBsdfAnisotropic", "ShaderNodeBsdfGlossy")]
+    assert sorted(round(n.inputs["Roughness"].default_value, 5) for n in glossy) == [round(r, 5) for r in fit.roughness]
+    assert all(n.distribution == "GGX" for n in glossy)
+    img = bpy.data.images["BRDFM lookup: Artist"]
+    assert img.packed_file is not None
+    # the panel states what was installed and its error
+    from importlib import import_module
+
+    from tests.test_operators import _Recorder
+
+    log = []
+    import_module("bl_ext.bmtest.brdf_moments.addon.blender.panel").draw_material(_Recorder(bpy, log), mat)
+    whole = " ".join(entry[2].get("text", "") for entry in log if entry[0] == "label")
+    assert f"{fit.n_lobes} GGX lobes and a diffuse lobe fitted to the edited table" in whole
+    assert f"BRDF error {100 * fit.error:.1f} %" in whole and f"albedo within {100 * fit.albedo_error:.1f} %" in whole
+    assert {n.image.name for n in group.nodes if n.bl_idname == "ShaderNodeTexImage"} == {img.name}
+    # the image holds the fit's colours (the file is half or full float: 1e-3 relative)
+    px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
+    img.pixels.foreach_get(px)
+    px = px.reshape(img.size[1], img.size[0], 4)[..., :3]
+    np.testing.assert_allclose(px, fit.lookup_pixels(), rtol=2e-3, atol=1e-5)
+    after = _render(bpy, scene, tmp / "after.exr")
+    mask = layout.interior_mask()
+    sky = Environment.constant((0.5, 0.5, 0.5))
+    ref = render_reference(layout, [TableBRDF(read_merl(state.edited_path))], sky, spp=2048, seed=5)
+    err_after = relative_rmse(after, ref, mask)
+    err_before = relative_rmse(before, ref, mask)
+    assert err_after < 0.05 < err_before, (err_after, err_before, fit.albedo_error)
+    # save, lose the lookup's file, reopen: the packed image renders the same
+    path = str(tmp / "lobes.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    loaded = bpy.path.abspath(img.filepath)
+    if os.path.isfile(loaded):
+        os.remove(loaded)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    mat = bpy.data.materials["Artist"]
+    assert mat.brdf_moments.lobes_fit().error == pytest.approx(fit.error)
+    again = _render(bpy, bpy.context.scene, tmp / "again.exr")
+    np.testing.assert_array_equal(again, after)
+    # Restore: the artist's tree exactly as it was
+    assert bpy.ops.brdf_moments.restore_material(material="Artist") == {"FINISHED"}
+    assert _tree(mat) == before_tree
+
+
+def test_the_glossy_node_renders_the_lobe_the_fit_models(fresh):
+    """One GGX Glossy node as the lobes group builds it (colour 1, roughness 0.6) on a sphere under
+    a constant white sky, orthographic: a pixel is the lobe's directional albedo at cos(theta_o) =
+    n_z. Cycles in 4.x renders the height-correlated Smith term the fit uses for it (the separable
+    one, which Blender 3.4 renders, is 1-2.5 % darker toward grazing)."""
+    import math
+    import sys
+
+    from addon.core.lobes import ggx_lobe, shadowing_for
+
+    bpy = fresh
+    material = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.material"]
+    assert shadowing_for(bpy.app.version) == "correlated"
+    scene = bpy.context.scene
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=256, ring_count=128, radius=1.0)
+    sphere = bpy.context.object
+    bpy.ops.object.shade_smooth()
+    mat = bpy.data.materials.new("one lobe")
+    group = material._new_group("one lobe")
+    glossy = material._glossy_node(group)
+    glossy.inputs["Roughness"].default_value = 0.6
+    glossy.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    out = group.nodes.new("NodeGroupOutput")
+    group.links.new(glossy.outputs[0], out.inputs[0])
+    tree = mat.node_tree if mat.node_tree is not None else None
+    if tree is None:
+        mat.use_nodes = True
+        tree = mat.node_tree
+    tree.nodes.clear()
+    node = tree.nodes.new("ShaderNodeGroup")
+    node.node_tree = group
+    tree.links.new(node.outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+    sphere.data.materials.append(mat)
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    cam.data.type, cam.data.ortho_scale, cam.location = "ORTHO", 2.0, (0.0, 0.0, 5.0)
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    world = bpy.data.worlds.new("white")
+    world.use_nodes = True
+    world.node_tree.nodes["Background"].inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    scene.world = world
+    n = 48
+    scene.render.engine = "CYCLES"
+    scene.cycles.device, scene.cycles.samples, scene.cycles.use_denoising = "CPU", 256, False
+    scene.cycles.max_bounces = scene.cycles.glossy_bounces = 1
+    scene.render.resolution_x = scene.render.resolution_y = n
+    scene.render.resolution_percentage = 100
+    scene.render.filter_size = 0.01
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        px = _render(bpy, scene, os.path.join(tmp, "lobe.exr"))[::-1, :, 0]  # rows bottom first again
+    c = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    r2 = c[None, :] ** 2 + c[:, None] ** 2
+    cos_o = np.sqrt(np.clip(1.0 - r2, 0.0, 1.0))
+
+    def albedo(cos, shadowing, k=300):
+        t = math.acos(cos)
+        u = (np.arange(k) + 0.5) / k
+        ct, ph = np.meshgrid(u, u * 2.0 * np.pi, indexing="ij")
+        st = np.sqrt(1.0 - ct * ct)
+        wi = np.stack((st * np.cos(ph), st * np.sin(ph), ct), -1).reshape(-1, 3)
+        wo = np.broadcast_to([math.sin(t), 0.0, math.cos(t)], wi.shape)
+        return float(np.sum(ggx_lobe(0.36, wi, wo, shadowing) * wi[:, 2]) * 2.0 * np.pi / (k * k))
+
+    ring = (r2 < 0.97) & (cos_o > 0.3) & (cos_o < 0.5)
+    rendered = float(np.mean(px[ring]))
+    grid = np.linspace(0.28, 0.52, 13)  # each pixel's own albedo (it is not linear in cos)
+    corr, sep = (
+        float(np.mean(np.interp(cos_o[ring], grid, [albedo(g, shadowing) for g in grid])))
+        for shadowing in ("correlated", "separable")
+    )
+    assert corr - sep > 0.005
+    assert abs(rendered - corr) < 0.3 * (corr - sep), (rendered, corr, sep)

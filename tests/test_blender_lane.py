@@ -95,13 +95,19 @@ def test_legacy_addon_runs_the_whole_flow_in_blender_34(lane_run, sample_table):
     ours = compute_profiles(sample_table("ggx_glossy"))
     for key in ("alpha", "mu_theta", "sigma_tt", "sigma_pp"):
         np.testing.assert_allclose(data["measured"]["avg"][key], ours["avg"][key], rtol=1e-6, atol=1e-9)
-    # The edit (warp mode, the glossy lobe 1.5x wider, 80 % energy), judged as SPEC §6 does: the
-    # written table re-measured view by view. Measured under the bpy module: energy 0.9 %, variance
-    # 4.7 % median / 6.7 % worst, mean 0.005 rad; the median variance misses SPEC's 2 % (issue 18).
+    # The edit (warp mode, the glossy lobe's unclipped width 1.5x, 80 % energy), judged as SPEC §6
+    # does: the written table re-measured view by view against the targets the panel announced.
+    # Measured under the bpy module: energy 1.0 %, variance 5.3 % median / 8.5 % worst, mean
+    # 0.015 rad; the median variance misses SPEC's 2 % and the shape its 10 % (issue 27).
     per_view = summary["per_view"]
     assert per_view["energy"] < 0.02 and per_view["mean"] < 0.02
     assert per_view["variance_median"] < 0.06 and per_view["variance_worst"] < 0.10
-    assert summary["reached"]["sigma2"] == pytest.approx(summary["target"]["sigma2"], rel=0.1)
+    # What the panel showed beside the sliders before Apply: the targets' own fit. A 1.5x request
+    # announces less (the grazing views' lobes are clipped by the horizon).
+    announced = summary["announced"]
+    assert announced["sigma2"] < summary["target"]["sigma2"]
+    assert summary["reached"]["sigma2"] == pytest.approx(announced["sigma2"], rel=0.1)
+    assert summary["reached"]["mu_slope"] == pytest.approx(announced["mu_slope"], abs=0.02)
     # The preview took the baked path (this Blender has no OSL) and rendered both spheres.
     assert summary["renders"] and os.path.isfile(summary["renders"][0])
     assert "(baked)" in log or "(baked," in log
@@ -127,9 +133,11 @@ def test_analyse_and_reset_run_in_blender_34(lane_run):
 
 
 def test_apply_edits_the_material_itself_in_blender_34(lane_run):
-    """No OSL in Debian's 3.4: Apply put a Principled BSDF fitted to the edited table into the
-    demo's material, labelled as an approximation; Restore took it out; the plot survived a
-    save and reopen."""
+    """No OSL in Debian's 3.4: Apply (Auto) put the Principled BSDF into the demo's material (on
+    the demo's analytic GGX edit it is closer than the lobes, albedo within 10 %), labelled as an
+    approximation; Restore took it out. The fitted lobes, chosen explicitly, build in 3.4 too:
+    Diffuse and single-scattering GGX Glossy nodes reading a packed lookup, fitted with 3.4's
+    separable Smith term. The plot survived a save and reopen."""
     res, out, _ = lane_run
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     ops = json.loads((out / "operators.json").read_text())
@@ -139,7 +147,19 @@ def test_apply_edits_the_material_itself_in_blender_34(lane_run):
     # the demo widens ggx_glossy's lobe 1.5x (GGX alpha 0.1, Blender roughness sqrt(0.1) = 0.316):
     # the fit is rougher (measured 0.347; sqrt(1.5) x the width would be 0.35)
     assert art["principled"]["roughness"] > 0.33 and 0.0 < art["principled"]["error"] < 1.0
+    assert art["principled"]["albedo_error"] <= 0.10
     assert "BRDF Moments edit" not in art["after_restore"]
+    lobes = art["lobes_run"]
+    assert lobes["ran"] == ["FINISHED"] and lobes["used"] == "lobes" and lobes["linked"] and lobes["packed"]
+    assert "GGX lobes" in lobes["label"]
+    fit = lobes["lobes"]
+    assert fit["shadowing"] == "separable"
+    assert lobes["distributions"] == [["ShaderNodeBsdfGlossy", "GGX"]] * len(fit["roughness"])
+    assert lobes["group"].count("ShaderNodeTexImage") == len(fit["roughness"]) + 1
+    assert "ShaderNodeBsdfDiffuse" in lobes["group"] and "ShaderNodeLayerWeight" in lobes["group"]
+    # Auto kept the Principled because it is closer in BRDF error; the lobes meet the albedo
+    assert art["principled"]["error"] < fit["error"] < 1.0 and fit["albedo_error"] < 0.05
+    assert lobes["restore"] == ["FINISHED"] and "BRDF Moments edit" not in lobes["after_restore"]
     assert ops["reopened"]["plot"] and ops["reopened"]["plot_drawn"] > 0.01
 
 

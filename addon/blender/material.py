@@ -6,9 +6,13 @@ replaced is remembered on the material, so Restore puts it back and removes the 
 tree is then exactly the original. Both are plain data edits inside undo-aware operators, so
 Ctrl-Z undoes them.
 
-The group holds either
-- a Principled BSDF fitted to the edited table (``core.principled``): any engine, any Blender
-  (EEVEE, Cycles on GPU, Debian's 3.4); an approximation whose error the panel states; or
+The group holds one of
+- GGX lobes and a diffuse lobe whose colours follow the view angle through a small packed lookup
+  image (``core.lobes``): plain Diffuse, Glossy, Layer Weight, Math and Image Texture nodes, so
+  any engine and any Blender (EEVEE, Cycles on GPU, Debian's 3.4); an approximation whose
+  error the panel states;
+- a Principled BSDF fitted to the edited table (``core.principled``): the same reach, farther
+  from measured materials, but one node an artist can keep editing;
 - the tabulated OSL shader reading the edited table (Cycles with OSL only): the material itself.
 """
 
@@ -17,6 +21,7 @@ from __future__ import annotations
 import json
 
 import bpy
+import numpy as np
 
 GROUP_NODE = "BRDF Moments edit"
 KEY = "brdfm_original_surface"  # JSON [node name, output identifier] or [] (Surface unlinked)
@@ -90,6 +95,78 @@ def fill_principled(group, fit):
         sock.default_value = value
     group.links.new(bsdf.outputs[0], out.inputs[0])
     return bsdf
+
+
+def _glossy_node(group):
+    # Blender 4.0 merged Glossy into the anisotropic node's idname; 3.x has both (and there the
+    # anisotropic one starts at anisotropy 0.5): Glossy itself
+    kind = "ShaderNodeBsdfAnisotropic" if bpy.app.version >= (4, 0, 0) else "ShaderNodeBsdfGlossy"
+    node = group.nodes.new(kind)
+    node.distribution = "GGX"  # single scattering: the model core.lobes fits
+    _set_input(node, ("Anisotropy",), 0.0)  # isotropic, as fitted
+    return node
+
+
+def fill_lobes(group, fit, image):
+    """The group's content for a ``core.lobes`` fit: the view angle u = theta_o / 90° from the
+    Layer Weight's facing ratio (1 - |N.I|), one Image Texture per row of the lookup ``image``
+    (row r read at v = (r + 1/2) / rows: texel centres, so linear filtering never mixes rows),
+    its colour driving a Diffuse BSDF (row 0) or a GGX Glossy BSDF (row k), all added."""
+    group.nodes.clear()
+    out = group.nodes.new("NodeGroupOutput")
+    out.location = (1000, 0)
+    facing = group.nodes.new("ShaderNodeLayerWeight")
+    facing.inputs["Blend"].default_value = 0.5  # facing = 1 - |N.I| exactly
+    facing.location = (-900, 0)
+    chain = []
+    for op, value in (("SUBTRACT", None), ("ARCCOSINE", None), ("MULTIPLY", 2.0 / 3.141592653589793)):
+        m = group.nodes.new("ShaderNodeMath")
+        m.operation = op
+        m.use_clamp = op == "MULTIPLY"
+        m.location = (-700 + 150 * len(chain), 0)
+        if op == "SUBTRACT":
+            m.inputs[0].default_value = 1.0
+            group.links.new(facing.outputs["Facing"], m.inputs[1])
+        else:
+            group.links.new(chain[-1].outputs[0], m.inputs[0])
+            if value is not None:
+                m.inputs[1].default_value = value
+        chain.append(m)
+    u = chain[-1].outputs[0]
+    rows = fit.weights.shape[0]
+    total = None
+    for r in range(rows):
+        y = -300 * r
+        xyz = group.nodes.new("ShaderNodeCombineXYZ")
+        xyz.location = (-200, y)
+        group.links.new(u, xyz.inputs["X"])
+        xyz.inputs["Y"].default_value = (r + 0.5) / rows
+        tex = group.nodes.new("ShaderNodeTexImage")
+        tex.location = (0, y)
+        tex.image = image
+        tex.interpolation = "Linear"
+        tex.extension = "EXTEND"
+        group.links.new(xyz.outputs[0], tex.inputs["Vector"])
+        if r == 0:
+            bsdf = group.nodes.new("ShaderNodeBsdfDiffuse")
+            bsdf.inputs["Roughness"].default_value = 0.0
+            bsdf.name = bsdf.label = "diffuse"
+        else:
+            bsdf = _glossy_node(group)
+            bsdf.inputs["Roughness"].default_value = fit.roughness[r - 1]
+            bsdf.name = bsdf.label = f"GGX lobe {r} (roughness {fit.roughness[r - 1]:.3f})"
+        bsdf.location = (300, y)
+        group.links.new(tex.outputs["Color"], bsdf.inputs["Color"])
+        if total is None:
+            total = bsdf.outputs[0]
+        else:
+            add = group.nodes.new("ShaderNodeAddShader")
+            add.location = (600, y)
+            group.links.new(total, add.inputs[0])
+            group.links.new(bsdf.outputs[0], add.inputs[1])
+            total = add.outputs[0]
+    group.links.new(total, out.inputs[0])
+    return group
 
 
 def fill_osl(group, texture_path, fit_mu, fit_sigma2, kd, samples=16):
@@ -169,7 +246,22 @@ def apply_principled(mat, fit):
     return group
 
 
+def apply_lobes(mat, fit, storage="PACK"):
+    """The lobe mixture in ``mat``: its lookup image packed into the .blend (or next to it)."""
+    pixels = np.ascontiguousarray(fit.lookup_pixels()[::-1])  # top row first, as image files are written
+    _texture_file(mat, pixels, storage, LOOKUP_IMAGE, "brdfm-lookup")
+    image = bpy.data.images[LOOKUP_IMAGE.format(mat.name)]
+    label = (
+        f"BRDF Moments edit ({fit.n_lobes} GGX lobes + diffuse, approx., error {100 * fit.error:.1f} %, "
+        f"albedo within {100 * fit.albedo_error:.1f} %)"
+    )
+    group = apply_group(mat, label)
+    fill_lobes(group, fit, image)
+    return group
+
+
 TEXTURE_IMAGE = "BRDFM table: {}"
+LOOKUP_IMAGE = "BRDFM lookup: {}"
 TEXTURE_FOLDER = "brdf_moments"  # next to the .blend, when the artist chooses that
 
 
@@ -184,12 +276,16 @@ def _texture_cache():
 def table_texture_file(mat, pixels, storage="PACK"):
     """The OSL table texture of ``mat`` as a file (OSL reads files only), and an image datablock
     that keeps it with the .blend: packed into it (default), or a file next to it."""
+    return _texture_file(mat, pixels, storage, TEXTURE_IMAGE, "brdfm-table")
+
+
+def _texture_file(mat, pixels, storage, image_name, prefix):
     import hashlib
     import os
 
     from .preview.environment import write_environment
 
-    name = f"brdfm-table-{hashlib.sha256(pixels.tobytes()).hexdigest()[:16]}.exr"
+    name = f"{prefix}-{hashlib.sha256(pixels.tobytes()).hexdigest()[:16]}.exr"
     beside = storage == "BESIDE" and bool(bpy.data.filepath)
     folder = (
         os.path.join(os.path.dirname(bpy.path.abspath(bpy.data.filepath)), TEXTURE_FOLDER)
@@ -200,7 +296,7 @@ def table_texture_file(mat, pixels, storage="PACK"):
     path = os.path.join(folder, name)
     if not os.path.isfile(path):
         write_environment(pixels, path)
-    img_name = TEXTURE_IMAGE.format(mat.name)
+    img_name = image_name.format(mat.name)
     old = bpy.data.images.get(img_name)
     if old is not None:
         bpy.data.images.remove(old)

@@ -156,9 +156,9 @@ def draw_material(layout, mat, context=None):
     osl = osl_supported()
     if osl:
         row.prop(state, "artist_shader", text="")
-    else:  # no OSL in this Blender: the one choice there is
-        row.label(text="Principled (approx.)")
-    if state.artist_shader in {"AUTO", "OSL"} and osl:
+    else:  # no OSL in this Blender: the approximations
+        row.prop(state, "artist_shader", text="")
+    if state.artist_shader in {"AUTO", "OSL", "LOBES"}:
         row = col.row(align=True)
         row.label(text="Table texture")
         row.prop(state, "texture_storage", text="")
@@ -188,8 +188,18 @@ def draw_material(layout, mat, context=None):
         res = layout.box()
         used = state.artist_shader_used
         fit = state.principled_fit() if used == "principled" else None
+        lobes = state.lobes_fit() if used == "lobes" else None
         col = res.column(align=True)
-        if fit is not None:
+        if lobes is not None:
+            wrapped(
+                col,
+                f"'{mat.name}' renders {lobes.n_lobes} GGX lobes and a diffuse lobe fitted to the edited table, "
+                f"their colours following the view angle: an approximation, BRDF error {100 * lobes.error:.1f} % "
+                f"(cosine-weighted), albedo within {100 * lobes.albedo_error:.1f} %",
+                width,
+                icon="INFO",
+            )
+        elif fit is not None:
             wrapped(
                 col,
                 f"'{mat.name}' renders a Principled BSDF fitted to the edited table: an approximation, "

@@ -48,6 +48,7 @@ PRELOAD = (
     "..core.fits",
     "..core.merl",
     "..core.nbrdf",
+    "..core.lobes",
     "..core.principled",
     "..core.render",
     ".images",

@@ -236,7 +236,14 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
             (
                 "AUTO",
                 "Auto",
-                "OSL tabulated where the scene renders with Cycles OSL, else the Principled approximation",
+                "OSL tabulated where the scene renders with Cycles OSL, else the fitted lobes (or the Principled "
+                "approximation where its BRDF error is lower and its albedo within 10 %)",
+            ),
+            (
+                "LOBES",
+                "Fitted lobes (approx.)",
+                "GGX lobes and a diffuse lobe whose colours follow the view angle, fitted to the edited table: "
+                "any engine",
             ),
             ("PRINCIPLED", "Principled (approx.)", "a Principled BSDF fitted to the edited table: any engine"),
             ("OSL", "OSL tabulated", "the edited table itself, read by an OSL shader (Cycles with OSL)"),
@@ -247,12 +254,17 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         name="Table texture",
         default="PACK",
         items=[
-            ("PACK", "Packed in .blend", "the OSL table texture is packed into the .blend"),
-            ("BESIDE", "Next to .blend", "the OSL table texture is written next to the saved .blend (//brdf_moments/)"),
+            ("PACK", "Packed in .blend", "the OSL table texture or the lobes' lookup is packed into the .blend"),
+            (
+                "BESIDE",
+                "Next to .blend",
+                "the OSL table texture or the lobes' lookup is written next to the saved .blend (//brdf_moments/)",
+            ),
         ],
     )
     principled_data: bpy.props.StringProperty(options={"HIDDEN"})  # the last Principled fit (JSON)
-    artist_shader_used: bpy.props.StringProperty(options={"HIDDEN"})  # "principled" / "osl" / ""
+    lobes_data: bpy.props.StringProperty(options={"HIDDEN"})  # the last lobe fit (JSON)
+    artist_shader_used: bpy.props.StringProperty(options={"HIDDEN"})  # "lobes" / "principled" / "osl" / ""
     preview_env: bpy.props.StringProperty(
         name="Environment",
         default="",
@@ -288,6 +300,19 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
             self.mu_slope = clamp_mu(fit["mu_slope"])
         if fit.get("sigma2") is not None:
             self.sigma2 = clamp_sigma2(fit["sigma2"])
+
+    def lobes_fit(self):
+        """The lobe mixture fitted to the last edited table, or None (also when unreadable)."""
+        import json
+
+        from ..core.lobes import LobeFit
+
+        if not self.lobes_data:
+            return None
+        try:
+            return LobeFit.from_dict(json.loads(self.lobes_data))
+        except (ValueError, KeyError, TypeError):
+            return None
 
     def principled_fit(self):
         """The Principled BSDF fitted to the last edited table, or None."""

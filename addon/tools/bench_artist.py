@@ -10,8 +10,10 @@ the pixels wholly inside the sphere, and RMSE / RMS in brackets.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
+import sys
 import time
 
 import numpy as np
@@ -222,6 +224,112 @@ def bench_live(quick=False):
             f"target 1 s: {'met' if med <= 1.0 else 'missed'}; refined image median {float(np.median(refined)):.2f} s.",
         ]
     )
+
+
+RENDER_NAMES = (
+    "rgl/paper_blue",
+    "rgl/cm_white",
+    "rgl/satin_gold",
+    "rgl/ilm_l3_37_metallic",
+    "nielsen/paintedmetal",
+)  # five measured materials (as measured), and the demo's edit below
+RENDER_SIZE = 128
+REF_SAMPLES = 512  # the baked reference: 4x Build Preview's 128+128 per texel
+
+
+def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=print):
+    """The artist's sphere rendered with the fitted lobes (Cycles, GPU-compatible nodes, on the
+    CPU here) against the baked reference of the same table under the same HDRI (`studio`):
+    per-pixel relative RMSE over the sphere's interior. Cycles' own noise is estimated from two
+    seeds. Needs the bpy module (python -m addon.tools.bench_nodes --render)."""
+    import samples
+
+    from ..blender import material as artist
+    from ..blender.preview import render_still
+    from ..blender.preview import scene as sc
+    from ..core.edit import EditTargets, edit
+    from ..core.fits import fit_material
+    from ..core.lobes import fit_lobes, shadowing_for
+    from ..core.merl import read_merl
+    from ..core.principled import fit_principled
+    from ..core.profiles import compute_profiles
+    from ..core.render import TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
+    from ..wheel import import_bpy
+    from .bench_preview import _environment, _read_exr
+
+    bpy = import_bpy()
+    env, env_path = _environment(bpy)
+    layout = sphere_layout(RENDER_SIZE, RENDER_SIZE, 1)
+    d, mask = layout.diameter, layout.interior_mask()
+    tmp = "/tmp/brdfm-bench-nodes.exr"
+    cases = [(name, "as measured", read_merl(samples.sample_path(name))) for name in names]
+    if demo:
+        glossy = read_merl(samples.sample_path("ggx_glossy"))
+        prof = compute_profiles(glossy)
+        fit = fit_material(prof)
+        sliders = EditTargets(sigma2=min(fit["sigma2"] * 1.5, 0.8), strength=0.8)  # samples/demo.py's
+        cases.append(("ggx_glossy", "the demo's edit (σ̃² ×1.5, strength 0.8)", edit(glossy, sliders, prof, fit).table))
+    engines = [("CYCLES", "Cycles (CPU)")]
+    if eevee:
+        next_ = (4, 2, 0) <= bpy.app.version < (5, 0, 0)  # EEVEE Next's engine name in 4.2-4.5
+        engines.append(("BLENDER_EEVEE_NEXT" if next_ else "BLENDER_EEVEE", "EEVEE"))
+    out(
+        "| material | edit | what renders | its stated error | rendered rel. RMSE per pixel (RMSE/RMS; median pixel) | its noise | render time |"
+    )
+    out("|---|---|---|---|---|---|---|")
+    for name, label, table in cases:
+        t0 = time.perf_counter()
+        tprof = compute_profiles(table)
+        rgb, cov = bake_sphere(TableBRDF(table, tprof), env, d, REF_SAMPLES, 0)
+        ref = layout.compose([np.dstack([rgb * cov[..., None], cov])])
+        t_ref = time.perf_counter() - t0
+        lf = fit_lobes(table, shadowing=shadowing_for(bpy.app.version))
+        pf = fit_principled(table)
+        for (engine, what), (kind, rep) in itertools.product(engines, (("lobes", lf), ("Principled", pf))):
+            bpy.ops.wm.read_homefile(use_empty=True)
+            scene = bpy.context.scene
+            sc.configure_render(scene, layout, "baked", spp)
+            scene.cycles.max_bounces = scene.cycles.diffuse_bounces = scene.cycles.glossy_bounces = 1
+            sc.ensure_camera(scene, layout)
+            sc.ensure_world(scene, env_path, path="osl")
+            (obj,) = sc.ensure_spheres(scene, layout)
+            mat = bpy.data.materials.new("bench artist")
+            if kind == "lobes":
+                artist.apply_lobes(mat, rep)
+            else:
+                artist.apply_principled(mat, rep)
+            obj.data.materials.clear()
+            obj.data.materials.append(mat)
+            try:
+                scene.render.engine = engine
+                if engine != "CYCLES":
+                    scene.eevee.taa_render_samples = spp
+            except TypeError as exc:
+                out(f"| {name} | {label} | {what} | | not available: {exc} | | |")
+                continue
+            imgs, took = [], 0.0
+            try:
+                for seed in (0, 1):
+                    scene.cycles.seed = seed
+                    t0 = time.perf_counter()
+                    render_still(scene, tmp, quiet=True)
+                    took = time.perf_counter() - t0
+                    imgs.append(_read_exr(bpy, tmp))
+            except RuntimeError as exc:
+                out(f"| {name} | {label} | {what} | | failed: {str(exc).splitlines()[0]} | | |")
+                continue
+            img = 0.5 * (imgs[0] + imgs[1])
+            noise = 0.5 * relative_rmse(imgs[0], imgs[1], mask)
+            e = relative_rmse(img, ref, mask)
+            e2 = normalized_rmse(img, ref, mask)
+            a, r = img[mask][:, :3], ref[mask][:, :3]
+            med = float(np.median(np.abs(a - r) / np.maximum(r, 1e-3 * float(np.mean(r)))))
+            out(
+                f"| {name} | {label} | {kind}: {what} {bpy.app.version_string}, {spp}x2 spp | "
+                f"{rep.error:.1%} / albedo {rep.albedo_error:.1%} | "
+                f"**{e:.2%}** ({e2:.2%}; median pixel {med:.1%}) | {noise:.2%} | {took:.1f} s (reference bake {t_ref:.0f} s) |"
+            )
+            sys.stdout.flush()
 
 
 def _tmp_dir():

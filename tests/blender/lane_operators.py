@@ -15,17 +15,36 @@ argv = script_args()
 out = argv[argv.index("--out") + 1]
 mat = next(m for m in bpy.data.materials if m.brdf_moments.analysed)
 state = mat.brdf_moments
-# Apply put the edit into the material itself (no OSL here: the Principled approximation)
-group_node = mat.node_tree.nodes.get("BRDF Moments edit")
-artist = {
-    "used": state.artist_shader_used,
-    "label": group_node.label if group_node else "",
-    "group": sorted(n.bl_idname for n in group_node.node_tree.nodes) if group_node else [],
-    "linked": bool(group_node and group_node.outputs[0].is_linked),
-    "principled": json.loads(state.principled_data) if state.principled_data else None,
-}
+
+
+def record():
+    """What the edit put into the material: the group's nodes, the fits, the lookup's packing."""
+    node = mat.node_tree.nodes.get("BRDF Moments edit")
+    nodes = list(node.node_tree.nodes) if node else []
+    lookup = bpy.data.images.get(f"BRDFM lookup: {mat.name}")
+    return {
+        "used": state.artist_shader_used,
+        "label": node.label if node else "",
+        "group": sorted(n.bl_idname for n in nodes),
+        "distributions": sorted([n.bl_idname, n.distribution] for n in nodes if hasattr(n, "distribution")),
+        "linked": bool(node and node.outputs[0].is_linked),
+        "principled": json.loads(state.principled_data) if state.principled_data else None,
+        "lobes": json.loads(state.lobes_data) if state.lobes_data else None,
+        "packed": bool(lookup is not None and lookup.packed_file is not None),
+    }
+
+
+# Apply put the edit into the material itself (no OSL here: Auto's approximation)
+artist = record()
 ran_restore = sorted(bpy.ops.brdf_moments.restore_material(material=mat.name))
 artist["after_restore"] = sorted(n.name for n in mat.node_tree.nodes)
+# the other approximation, chosen explicitly: the fitted lobes (plain nodes and a packed lookup)
+state.artist_shader = "LOBES"
+ran_lobes = sorted(bpy.ops.brdf_moments.apply_edit(material=mat.name))
+artist["lobes_run"] = {"ran": ran_lobes, **record()}
+artist["lobes_run"]["restore"] = sorted(bpy.ops.brdf_moments.restore_material(material=mat.name))
+artist["lobes_run"]["after_restore"] = sorted(n.name for n in mat.node_tree.nodes)
+state.artist_shader = "AUTO"
 before = {"mu_slope": state.fit_mu_slope, "sigma2": state.fit_sigma2}
 edited = {"sigma2": state.sigma2, "strength": state.strength}
 state.fit_mu_slope = state.fit_sigma2 = 0.0  # so that only a real re-analysis restores them

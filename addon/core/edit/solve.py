@@ -293,10 +293,18 @@ class Announcement:
     fitted: tuple  # the material's own (mu~, sigma~^2)
     region: ReachableRegion | None = None
 
+    energy_kept: bool = True  # strength, colour and boost untouched, warp mode
+
+    @property
+    def at_fit(self) -> bool:
+        """Clamped back onto the material's own fit (warp mode): the lobes stay as measured."""
+        return self.clamped and self.point == self.fitted and self.targets.mode == "warp"
+
     @property
     def nothing_to_do(self) -> bool:
-        """Clamped back onto the material's own fit: the edit would change nothing (never 'met')."""
-        return self.clamped and self.point == self.fitted
+        """Clamped back onto the fit with the energy untouched: the edit would change nothing
+        (SPEC §3: reported so, never a met edit)."""
+        return self.at_fit and self.energy_kept
 
 
 def announce(prof: Profiles, fit: dict, targets: EditTargets, region: ReachableRegion | None = None) -> Announcement:
@@ -307,12 +315,16 @@ def announce(prof: Profiles, fit: dict, targets: EditTargets, region: ReachableR
     if fit.get("mu_slope") is None or fit.get("sigma2") is None:
         raise ValueError("the material has no specular lobe to edit (all its energy is in kd)")
     mu, s2, warnings = resolve_targets(targets, fit)
-    requested, clamped = (mu, s2), False
+    # A request the slider ranges held back is clamped too (it may land on the fit: nothing to do).
+    asked_mu = mu if targets.mu_slope is None else float(targets.mu_slope)
+    asked_s2 = s2 if targets.sigma2 is None or targets.lock else float(targets.sigma2)
+    requested, clamped = (asked_mu, asked_s2), (asked_mu, asked_s2) != (mu, s2)
     if not targets.is_identity() and not targets.is_energy_only():
         if region is None:
             region = reachable_region(prof, fit, mode=targets.mode)
-        mu_c, s2_c, clamped = region.clamp(mu, s2)
-        if clamped:
+        mu_c, s2_c, moved = region.clamp(mu, s2)
+        clamped |= moved
+        if moved:
             warnings.append(
                 f"mean slope {mu:+.3f} and variance {s2:.4g} lie outside what a reciprocal table of "
                 f"this material can show: clamped to the nearest reachable point ({mu_c:+.3f}, {s2_c:.4g})"
@@ -322,7 +334,9 @@ def announce(prof: Profiles, fit: dict, targets: EditTargets, region: ReachableR
     judged, reach = out_of_reach(vt, prof)
     share = float((judged & ~reach).sum() / max(int(judged.sum()), 1))
     fitted = (float(fit["mu_slope"]), float(fit["sigma2"]))
-    return Announcement(requested, (mu, s2), clamped, announced(vt), share, vt, warnings, fitted, region)
+    kept = targets.mode == "warp" and targets.strength == 1.0 and tuple(targets.colour) == (1.0, 1.0, 1.0)
+    kept = kept and targets.grazing_boost == 1.0
+    return Announcement(requested, (mu, s2), clamped, announced(vt), share, vt, warnings, fitted, region, kept)
 
 
 def edit(
@@ -373,13 +387,14 @@ def edit(
         )
         tell(1, 1)
         return res
-    if targets.is_energy_only():
-        # Energy only: the specular part scales exactly, per channel.
+    if targets.is_energy_only() or (plan.at_fit and targets.grazing_boost == 1.0):
+        # Energy only (or lobes clamped back to the fit): the specular part scales exactly.
         kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
         spec = np.maximum(table.rho - kd[:, None], 0.0)
         gain = targets.strength * np.asarray(targets.colour, float)[:, None]
         rho = np.where(table.valid, np.minimum(table.rho, kd[:, None]) + gain * spec, 0.0)
-        res = _finish(MerlTable(rho, table.valid.copy(), None), mu_t, s2_t, warnings, prof, remeasure, vt, **said)
+        out = MerlTable(rho, table.valid.copy(), None)
+        res = _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt, **said, clamped=plan.clamped)
         tell(1, 1)
         return res
     region, clamped = plan.region, plan.clamped

@@ -220,13 +220,10 @@ def follow_lobe(lobes: Lobes, ratio, shift):
     )
 
 
-def profile_lobes(prof: Profiles, channel=None) -> Lobes:
-    """``read_lobes`` of r, g, b stacked (V, 3), or of one channel (V,)."""
+def profile_lobes(prof: Profiles) -> Lobes:
+    """``read_lobes`` of r, g, b stacked (V, 3)."""
     theta = np.asarray(prof.theta_o, float)
-    if channel is None:
-        return read_lobes(theta[:, None], _stack(prof, "mu_theta"), _stack(prof, "sigma_tt"), _stack(prof, "sigma_pp"))
-    p = prof[channel]
-    return read_lobes(theta, p["mu_theta"], p["sigma_tt"], p["sigma_pp"])
+    return read_lobes(theta[:, None], _stack(prof, "mu_theta"), _stack(prof, "sigma_tt"), _stack(prof, "sigma_pp"))
 
 
 def model_lobe(theta_o, mu_fit, s2_fit, mu, s2):
@@ -253,20 +250,27 @@ def view_targets(prof: Profiles, fit: dict, t: EditTargets, mu: float, s2: float
         )
     ratio, shift = s2 / fit["sigma2"], mu - fit["mu_slope"]
     mean, var_tt, var_pp = follow_lobe(profile_lobes(prof), ratio, shift)
-    avg_mean, avg_tt, avg_pp = follow_lobe(profile_lobes(prof, "avg"), ratio, shift)
-    return ViewTargets(
-        theta,
-        target_energy(prof, fit, t),
-        mean,
-        var_tt,
-        var_pp,
-        {k: _stack(prof, k) for k in SHAPE_KEYS},
-        "warp",
-        mu,
-        s2,
-        avg_mean,
-        0.5 * (avg_tt + avg_pp),
-    )
+    alpha = target_energy(prof, fit, t)
+    avg_mean, avg_var = mixture(alpha, mean, var_tt, var_pp)
+    shape = {k: _stack(prof, k) for k in SHAPE_KEYS}
+    return ViewTargets(theta, alpha, mean, var_tt, var_pp, shape, "warp", mu, s2, avg_mean, avg_var)
+
+
+def mixture(alpha, mean, var_tt, var_pp):
+    """The average channel's (mean, average variance) per view from the channels' (V, 3): its
+    slice is the channels' mean, so its moments are their energy-weighted mixture (a colour edit
+    changes the weights, and so the average channel's mean). NaN where no channel has a lobe."""
+    ok = np.isfinite(mean) & np.isfinite(var_tt) & np.isfinite(var_pp) & (alpha > 0)
+    w = np.where(ok, alpha, 0.0)
+    total = w.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = w / total[:, None]
+        m = np.where(ok, mean, 0.0)
+        centre = (w * m).sum(axis=1)
+        tt = (w * (np.where(ok, var_tt, 0.0) + (m - centre[:, None]) ** 2)).sum(axis=1)
+        pp = (w * np.where(ok, var_pp, 0.0)).sum(axis=1)
+    none = total <= 0
+    return np.where(none, np.nan, centre), np.where(none, np.nan, 0.5 * (tt + pp))
 
 
 def announced(vt: ViewTargets):

@@ -1,0 +1,103 @@
+"""``python -m addon.tools.bench_nodes [--quick] [names...]``: the artist's material outside OSL
+(issue 28), engine only. For every measured material and its edits (σ̃² ×0.5, ×2, strength
+0.5), the lobe mixture the nodes render (``core.lobes``) and the single Principled BSDF
+(``core.principled``) against the edited table: BRDF error and directional-albedo error (as
+each fit states them), and the lobe fit's time. Prints a markdown table and a summary."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+EDITS = (("as measured", None), ("σ̃² ×0.5", ("sigma2", 0.5)), ("σ̃² ×2", ("sigma2", 2.0)), ("strength 0.5", None))
+QUICK = ("rgl/paper_blue", "rgl/cm_white", "rgl/satin_gold", "rgl/ilm_l3_37_metallic", "nielsen/paintedmetal")
+
+
+def edited_tables(table):
+    """(label, table) for the table and its three edits (an edit that fails is reported)."""
+    from ..core.edit import EditTargets, edit
+    from ..core.fits import fit_material
+    from ..core.profiles import compute_profiles
+
+    prof = compute_profiles(table)
+    fit = fit_material(prof)
+    yield "as measured", table
+    for label, targets in (
+        ("σ̃² ×0.5", lambda f: EditTargets(sigma2=f["sigma2"] * 0.5)),
+        ("σ̃² ×2", lambda f: EditTargets(sigma2=min(f["sigma2"] * 2.0, np.pi**2 / 12))),
+        ("strength 0.5", lambda f: EditTargets(strength=0.5)),
+    ):
+        try:
+            yield label, edit(table, targets(fit), prof, fit, remeasure=False).table
+        except ValueError as exc:  # no specular lobe to edit
+            yield label, exc
+
+
+def bench_nodes(names, principled=True, out=print):
+    import samples
+
+    from ..core.lobes import fit_lobes
+    from ..core.merl import read_merl
+    from ..core.principled import fit_principled
+
+    out(
+        "| material | edit | lobes: BRDF error | lobes: albedo error | Principled: BRDF | Principled: albedo | fit time |"
+    )
+    out("|---|---|---|---|---|---|---|")
+    errs, albs, times, perrs, palbs = [], [], [], [], []
+    for name in names:
+        table = read_merl(samples.sample_path(name))
+        for label, t in edited_tables(table):
+            if isinstance(t, Exception):
+                out(f"| {name} | {label} | not editable: {t} | | | | |")
+                continue
+            t0 = time.perf_counter()
+            f = fit_lobes(t)
+            took = time.perf_counter() - t0
+            p = fit_principled(t) if principled else None
+            errs.append(f.error)
+            albs.append(f.albedo_error)
+            times.append(took)
+            pe = pa = ""
+            if p is not None:
+                perrs.append(p.error)
+                palbs.append(p.albedo_error)
+                pe, pa = f"{p.error:.1%}", f"{p.albedo_error:.1%}"
+            out(f"| {name} | {label} | {f.error:.1%} | {f.albedo_error:.1%} | {pe} | {pa} | {took:.2f} s |")
+            sys.stdout.flush()
+    e, a = np.array(errs), np.array(albs)
+    out("")
+    out(
+        f"Lobes over {len(e)} tables: BRDF error median {np.median(e):.1%}, 90th percentile "
+        f"{np.percentile(e, 90):.1%}, worst {e.max():.1%}; albedo error median {np.median(a):.1%}, worst "
+        f"{a.max():.1%}; fit time median {np.median(times):.2f} s, worst {max(times):.2f} s."
+    )
+    if perrs:
+        out(
+            f"Principled over the same: BRDF error median {np.median(perrs):.1%}, worst {max(perrs):.1%}; "
+            f"albedo error median {np.median(palbs):.1%}, worst {max(palbs):.1%}."
+        )
+
+
+def main(argv):
+    """Engine figures by default; ``--render [--eevee] [names...]``: the rendered check
+    (``bench_artist.bench_nodes_render``, needs Blender)."""
+    import samples
+
+    if "--render" in argv:
+        names = [a for a in argv if not a.startswith("--")]
+        from .bench_artist import RENDER_NAMES, bench_nodes_render
+
+        bench_nodes_render(eevee="--eevee" in argv, names=names or RENDER_NAMES, demo=not names)
+        return
+    quick = "--quick" in argv
+    names = [a for a in argv if not a.startswith("--")]
+    if not names:
+        names = list(QUICK) if quick else samples.measured_names()
+    bench_nodes(names, principled="--no-principled" not in argv)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
