@@ -93,6 +93,7 @@ def measured_source(name: str):
 
 
 def _measured_path(name: str, force: bool) -> str:
+    from addon.core.cachefs import verified, write_seal
     from addon.core.merl import write_merl
     from addon.core.nbrdf import WeightsError, decode, load_network
 
@@ -106,15 +107,18 @@ def _measured_path(name: str, force: bool) -> str:
     root = os.path.join(cache_dir(), "measured")
     fname = name.replace("/", "-") + ".binary"
     path = os.path.join(root, net.digest(), fname)
-    if force or not os.path.exists(path):
+    if force or not verified(path):  # sealed: a damaged or unsealed table is decoded again
         os.makedirs(os.path.dirname(path), exist_ok=True)
         write_merl(decode(net), path)
+        write_seal(path)
         # Drop tables decoded from older weights of the same material: no leftovers.
         for digest in os.listdir(root):
             old = os.path.join(root, digest, fname)
             if digest != net.digest() and os.path.isfile(old):
                 try:
                     os.remove(old)
+                    if os.path.isfile(old + ".seal"):
+                        os.remove(old + ".seal")
                     os.rmdir(os.path.dirname(old))  # only if now empty
                 except OSError:
                     pass
@@ -123,6 +127,7 @@ def _measured_path(name: str, force: bool) -> str:
 
 def sample_path(name: str, force: bool = False) -> str:
     """Path of the named sample's MERL file, tabulating (or decoding) it first if needed."""
+    from addon.core.cachefs import verified, write_seal
     from addon.core.merl import tabulate, write_merl
 
     if "/" in name:
@@ -137,6 +142,7 @@ def sample_path(name: str, force: bool = False) -> str:
         raise ValueError(f"{folder}: BRDF_MOMENTS_SAMPLES must name a folder, and this is not one")
     os.makedirs(folder, exist_ok=True)
     path = os.path.join(folder, f"{name}.binary")
-    if force or not os.path.isfile(path):
+    if force or not verified(path):
         write_merl(tabulate(CATALOG[name]), path)
+        write_seal(path)
     return path

@@ -19,6 +19,7 @@ LANE_TESTS = [
     "tests/test_operators.py",
     "tests/test_load_set.py",
     "tests/test_jobs.py",
+    "tests/test_lifecycle.py",
     "tests/test_preview_blender.py",
 ]
 

@@ -96,7 +96,7 @@ def test_missing_file_and_bad_options_exit_2(tmp_path):
     res = run("profiles", str(tmp_path / "none.binary"), "--out", str(tmp_path / "o.json"))
     assert res.returncode == 2 and "none.binary" in res.stderr and "Traceback" not in res.stderr
     res = run("profiles", str(tmp_path / "none.binary"), "--out", "x.json", "--max-elevation", "95")
-    assert res.returncode == 2 and "[0, 90)" in res.stderr
+    assert res.returncode == 2 and "--max-elevation: must be at most 89.99" in res.stderr
 
 
 @pytest.mark.slow
@@ -163,3 +163,17 @@ def test_fit_and_analyze_report_bad_files_with_exit_2(tmp_path):
     empty.mkdir()
     res = run("analyze", str(empty), "--out", str(tmp_path / "r2"))
     assert res.returncode == 2 and "no .binary files" in res.stderr
+
+
+def test_every_help_prints_and_render_says_its_default():
+    for cmd in ([], ["profiles"], ["fit"], ["analyze"], ["edit"], ["render"], ["bench"]):
+        res = run(*cmd, "--help")
+        assert res.returncode == 0 and "usage:" in res.stdout and not res.stderr, (cmd, res.stderr)
+    text = " ".join(run("render", "--help").stdout.split())
+    from addon.core.render.live import FINAL_SAMPLES
+    from addon.tools.cli import RENDER_BAKE_SAMPLES, RENDER_DEFAULT_ERROR, build_parser
+
+    # the default is the accurate baked path, at the panel's bake, and the help says its error
+    args = build_parser().parse_args(["render", "x.binary", "--out", "o.png"])
+    assert args.path == "baked" and args.bake_samples == RENDER_BAKE_SAMPLES == FINAL_SAMPLES
+    assert "baked (default" in text and " ".join(RENDER_DEFAULT_ERROR.split()) in text

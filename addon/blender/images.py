@@ -8,6 +8,8 @@ import threading
 import bpy
 import numpy as np
 
+from . import lifecycle
+
 
 def keep_image(name, rgba, float_buffer=False):
     """The image ``name`` holding ``rgba`` ((H, W, 4), row 0 on top), kept in the .blend (fake
@@ -72,10 +74,19 @@ def draw_later(name, draw, then=None, now=False):
         with _DRAW_LOCK:
             _DRAWN.append((name, gen, px, extra, then))
 
-    threading.Thread(target=run, name="brdf_moments: drawing", daemon=True).start()
-    if not bpy.app.timers.is_registered(_place_drawn):
-        bpy.app.timers.register(_place_drawn, first_interval=0.02)
+    lifecycle.start_thread(run, "brdf_moments: drawing")
+    lifecycle.register_timer(_place_drawn, first_interval=0.02)
     return None
+
+
+@lifecycle.on_shutdown
+def _drop_all():
+    """Unregister: drawings in flight are superseded and nothing waits to be placed."""
+    with _DRAW_LOCK:
+        for name in list(_DRAW_GEN):
+            _DRAW_GEN[name] += 1
+        _DRAWN.clear()
+    _DRAW_PENDING.clear()
 
 
 def _place_drawn():

@@ -19,12 +19,13 @@ operator returns CANCELLED.
 
 from __future__ import annotations
 
-import multiprocessing
 import sys
 import threading
 import time
 
 import bpy
+
+from . import lifecycle
 
 
 class Cancelled(Exception):
@@ -36,6 +37,42 @@ _RUNNING: dict = {}
 # The last jobs that ended: label, material, outcome (finished/cancelled/failed), start and
 # end on time.monotonic(); the windowed test lane reads it to time the main loop per job.
 HISTORY: list = []
+
+
+# The same jobs as unregister sees them: stop (cancel, kill the child), the window manager,
+# its timer and the workspace whose status bar the job writes.
+_LIVE: dict = {}
+
+
+@lifecycle.on_shutdown
+def cancel_all():
+    """End every running job at once (unregister): its work cancelled, its child process killed,
+    its timer and progress given back; nothing it would have written is written."""
+    for key, job in list(_LIVE.items()):
+        _LIVE.pop(key, None)
+        job["stop"]()
+        label, mat = _RUNNING.pop(key, ("", ""))
+        now = time.monotonic()
+        HISTORY.append(
+            {
+                "label": label,
+                "material": mat,
+                "outcome": "unregistered",
+                "start": job["started"],
+                "end": now,
+                "marks": [],
+            }
+        )
+        for step in (
+            lambda: job["wm"].event_timer_remove(job["timer"]),
+            job["wm"].progress_end,
+            lambda: job["workspace"] is not None and job["workspace"].status_text_set(None),
+        ):
+            try:
+                step()
+            except (ReferenceError, RuntimeError, AttributeError, TypeError):
+                pass  # the window is gone already (Blender is quitting)
+    del HISTORY[:-50]
 
 
 def running() -> list:
@@ -66,7 +103,7 @@ def warm_up(theta_o):
         return
     from ..core.edit.solve import warm
 
-    threading.Thread(target=warm, args=(list(theta_o),), name="brdf_moments: warm-up", daemon=True).start()
+    lifecycle.start_thread(warm, "brdf_moments: warm-up", args=(list(theta_o),))
 
 
 # Errors that mean "this input or these sliders cannot be used", reported in one line.
@@ -163,7 +200,7 @@ def _fork_context():
     if not sys.platform.startswith("linux"):
         return None
     try:
-        return multiprocessing.get_context("fork")
+        return lifecycle.import_multiprocessing().get_context("fork")
     except ValueError:
         return None
 
@@ -279,18 +316,34 @@ class BackgroundJob:
                     proc.join(5)
                     state["finished"] = True
 
-        self._thread = threading.Thread(target=run, name=f"brdf_moments: {self.job_label}", daemon=True)
         _RUNNING[id(self)] = (self.job_label, getattr(self, "_mat_name", ""))
         self._started = time.monotonic()
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.1, window=context.window)
         wm.progress_begin(0, 1000)
         wm.modal_handler_add(self)
-        self._thread.start()
+        proc = self._proc
+
+        def stop():
+            cancel.set()
+            if proc is not None:
+                proc.kill()  # the listening thread then reads EOF and ends
+
+        # What unregister needs to end this job without the operator (Blender frees a running
+        # modal operator when its class is unregistered): plain objects only.
+        _LIVE[id(self)] = {
+            "stop": stop,
+            "wm": wm,
+            "timer": self._timer,
+            "workspace": context.workspace,
+            "started": self._started,
+        }
+        self._thread = lifecycle.start_thread(run, f"brdf_moments: {self.job_label}", stop=stop)
         return {"RUNNING_MODAL"}
 
     def _end(self, context, outcome):
         _ended(self, outcome)
+        _LIVE.pop(id(self), None)
         self.ended(context, outcome)
         wm = context.window_manager
         wm.event_timer_remove(self._timer)

@@ -18,6 +18,7 @@ import bpy
 import numpy as np
 
 from ..core.render.live import FINAL_SAMPLES, source_table, work
+from . import lifecycle
 
 DEBOUNCE = 0.1  # seconds of quiet after a slider move before the work starts
 POLL = 0.05
@@ -100,12 +101,16 @@ def _job(mat):
     source = bpy.path.abspath(state.source_path)
     if img is None or not state.analysed or state.preview_mode != "TABULATED" or not source_exists(source):
         return None
+    try:
+        targets = state.slider_targets()
+    except ValueError:
+        return None  # a slider outside its declared range: Apply says which
     w, h = img.size
     layout = sphere_layout(w, h, 2)
     return dict(
         mat=mat.name,
         source=source,
-        targets=state.slider_targets(),
+        targets=targets,
         prof=state.profiles(),
         fit=state.fit(),
         region=state.region(),  # Apply's: so that its synthesis is the one kept here
@@ -174,7 +179,7 @@ def slider_moved(mat):
         _start(lambda: _work(job, stale=lambda: _GEN.get(name) != gen, post=post))
         return None
 
-    bpy.app.timers.register(kick, first_interval=DEBOUNCE)
+    lifecycle.register_timer(kick, first_interval=DEBOUNCE)
 
 
 def _start(task):
@@ -186,9 +191,18 @@ def _start(task):
         except Exception as exc:  # noqa: BLE001 - a failed live update leaves the last image
             print(f"BRDF Moments: live preview: {type(exc).__name__}: {exc}")
 
-    threading.Thread(target=run, name="brdf_moments: live preview", daemon=True).start()
-    if not bpy.app.timers.is_registered(_apply_posted):
-        bpy.app.timers.register(_apply_posted, first_interval=POLL)
+    lifecycle.start_thread(run, "brdf_moments: live preview", stop=_stop_all)
+    lifecycle.register_timer(_apply_posted, first_interval=POLL)
+
+
+@lifecycle.on_shutdown
+def _stop_all():
+    """Unregister: every live work in flight becomes stale (it stops at its next stage) and
+    nothing it posted is applied."""
+    for name in list(_GEN):
+        _GEN[name] += 1
+    with _LOCK:
+        _POSTED.clear()
 
 
 def pause(mat):

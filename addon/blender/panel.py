@@ -662,7 +662,9 @@ def chart_icon(mat, kind, side):
     if _SHOWN.get(key) != sig and _WANTED.get(key) != sig:
         _WANTED[key] = sig
         name = mat.name
-        bpy.app.timers.register(lambda: _start_chart(name, kind, side, key, sig), first_interval=0.0)
+        from .lifecycle import register_timer  # unregister stops it (lifecycle.shutdown)
+
+        register_timer(lambda: _start_chart(name, kind, side, key, sig), first_interval=0.0)
     pv = _previews().get(key)
     return pv.icon_id if pv is not None and key in _SHOWN else None
 
@@ -673,7 +675,6 @@ def chart_failed(mat, kind, side):
 
 def _start_chart(name, kind, side, key, sig):
     """On the main thread: the data, read from the material; the drawing, in a thread."""
-    import threading
 
     from . import plot_image
 
@@ -726,9 +727,10 @@ def _start_chart(name, kind, side, key, sig):
             px = None
         _DONE.append((key, sig, px))
 
-    threading.Thread(target=run, name="brdf_moments: chart", daemon=True).start()
-    if not bpy.app.timers.is_registered(_place_charts):
-        bpy.app.timers.register(_place_charts, first_interval=0.02)
+    from .lifecycle import register_timer, start_thread
+
+    start_thread(run, "brdf_moments: chart")
+    register_timer(_place_charts, first_interval=0.02)
     return None
 
 

@@ -8,7 +8,7 @@ import importlib
 
 import bpy
 
-from . import panel, state
+from . import lifecycle, panel, state
 
 
 def classes(operators):
@@ -64,6 +64,9 @@ PRELOAD = (
 def register(operators):
     for name in PRELOAD:
         importlib.import_module(name, __package__)
+    # multiprocessing (the job runner's), imported here and not inside some later script run by
+    # blender -P: its alias of that script's __main__ would crash Blender's exit (see lifecycle).
+    lifecycle.import_multiprocessing()
     for cls in classes(operators):
         bpy.utils.register_class(cls)
     state.attach()
@@ -72,10 +75,18 @@ def register(operators):
         bpy.app.handlers.load_post.append(_file_loaded)
 
 
+# What the last unregister found still running (tests read it).
+LAST_SHUTDOWN: dict = {}
+
+
 def unregister(operators):
     if _file_loaded in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(_file_loaded)
-    panel.detach()
+    # Jobs, timers and threads first: none of them may reach for a class or property that is
+    # about to go (a timer after this would find no Material.brdf_moments).
+    LAST_SHUTDOWN.clear()
+    LAST_SHUTDOWN.update(lifecycle.shutdown())
+    panel.detach()  # the charts' pictures and their timer
     state.detach()
     for cls in reversed(classes(operators)):
         bpy.utils.unregister_class(cls)

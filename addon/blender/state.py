@@ -11,13 +11,24 @@ import bpy
 import numpy as np
 
 from ..core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
-from ..core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE
+from ..core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE, MU_SLOPE_RANGE, RANGES
 from ..core.moments import CHANNELS, PROFILE_KEYS
 from .images import draw_later
 
-MU_MIN, MU_MAX = -2.0, 0.0
+MU_MIN, MU_MAX = MU_SLOPE_RANGE  # the declared ranges (core/limits.py), shared with the command line
 # The slider reaches below the model's floor (MIN_SIGMA2): the edit clamps it and says so.
-SIGMA2_MIN, SIGMA2_MAX = 1e-8, LAMBERT_VARIANCE
+SIGMA2_MIN, SIGMA2_MAX = RANGES["sigma2"].low, RANGES["sigma2"].high
+
+
+# The sliders by the names the panel shows (the one-line error of a value out of range).
+SLIDER_LABELS = {
+    "strength": "Strength",
+    "colour": "Colour",
+    "grazing_boost": "Grazing boost",
+    "mu_slope": "Mean slope μ̃",
+    "sigma2": "Variance σ̃²",
+    "correlation_a": "Correlation a",
+}
 
 
 def clamp_mu(v):
@@ -116,18 +127,27 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     source_stamp: bpy.props.StringProperty(options={"HIDDEN"})
     # Sliders.
     strength: bpy.props.FloatProperty(
-        name="Strength", default=1.0, min=0.0, soft_max=4.0, update=lambda self, ctx: _slider_moved(self)
+        name="Strength",
+        default=1.0,
+        **RANGES["strength"].prop(),
+        soft_max=4.0,
+        update=lambda self, ctx: _slider_moved(self),
     )
     colour: bpy.props.FloatVectorProperty(
         name="Colour",
         size=3,
         subtype="COLOR",
         default=(1.0, 1.0, 1.0),
-        min=0.0,
+        **RANGES["colour"].prop(),
+        soft_max=1.0,
         update=lambda self, ctx: _slider_moved(self),
     )
     grazing_boost: bpy.props.FloatProperty(
-        name="Grazing boost", default=1.0, min=0.0, soft_max=4.0, update=lambda self, ctx: _slider_moved(self)
+        name="Grazing boost",
+        default=1.0,
+        **RANGES["grazing_boost"].prop(),
+        soft_max=4.0,
+        update=lambda self, ctx: _slider_moved(self),
     )
     # Hard ranges wide enough for every fitted value (measured mu goes below -1); the soft
     # range is what a drag covers.
@@ -158,6 +178,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     correlation_a: bpy.props.FloatProperty(
         name="Correlation a",
         default=0.0,
+        **RANGES["correlation_a"].prop(),
         update=lambda self, ctx: _slider_moved(self) if self.lock else region_image(self.id_data, later=True),
         description="the quadratic's a in σ̃² = a μ̃² + (a + π²/12) μ̃ + π²/12 (fit a set with 'python -m addon analyze', then Load Set)",
     )
@@ -419,7 +440,10 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         region = self.region()
         if region is None:
             return None
-        targets = self.slider_targets()
+        try:
+            targets = self.slider_targets()
+        except ValueError:
+            return None  # Apply will say which slider is out of range
         if targets.is_energy_only() or targets.is_identity():
             return None
         try:
@@ -462,20 +486,26 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         )
 
     def slider_targets(self):
-        """The sliders as engine targets; a slider still at its fitted value stays exact."""
+        """The sliders as engine targets; a slider still at its fitted value stays exact.
+        ValueError (one line naming the slider) for a value outside its declared range (a file
+        saved by another version, or a script that bypassed the property)."""
         from ..core.edit import EditTargets
+        from ..core.limits import check_targets
 
         at_fit_mu = abs(self.mu_slope - clamp_mu(self.fit_mu_slope)) < 1e-6
         at_fit_s2 = abs(self.sigma2 - clamp_sigma2(self.fit_sigma2)) <= 1e-7 * max(self.fit_sigma2, 1e-6)
-        return EditTargets(
-            strength=self.strength,
-            colour=tuple(self.colour),
-            grazing_boost=self.grazing_boost,
-            mu_slope=None if at_fit_mu and not self.lock else self.mu_slope,
-            sigma2=None if at_fit_s2 or self.lock else self.sigma2,
-            mode=self.mode,
-            lock=self.lock,
-            correlation_a=self.correlation_a if self.lock else None,
+        return check_targets(
+            EditTargets(
+                strength=self.strength,
+                colour=tuple(self.colour),
+                grazing_boost=self.grazing_boost,
+                mu_slope=None if at_fit_mu and not self.lock else self.mu_slope,
+                sigma2=None if at_fit_s2 or self.lock else self.sigma2,
+                mode=self.mode,
+                lock=self.lock,
+                correlation_a=self.correlation_a if self.lock else None,
+            ),
+            labels=SLIDER_LABELS,
         )
 
 

@@ -97,8 +97,10 @@ def sweep_pending(only_pid=None) -> list:
             continue
         entry = os.path.join(folder, name)
         try:
-            with open(entry) as fh:
-                rec = json.load(fh)
+            from .limits import MAX_JOURNAL_ENTRY_BYTES
+            from .safeio import read_input
+
+            rec = json.loads(read_input(entry, MAX_JOURNAL_ENTRY_BYTES, "journal entry", register=False))
             path, kind = rec["path"], rec["kind"]
             st = os.lstat(path)
             same = (st.st_dev, st.st_ino) == (rec["dev"], rec["ino"])

@@ -47,14 +47,10 @@ def default_cache_dir() -> str:
 
 def default_views(count: int = 90, max_deg: float = 89.0) -> np.ndarray:
     """theta_o samples in radians: 0 .. max_deg inclusive, ``count`` of them."""
-    from .limits import MAX_ELEVATIONS
+    from .limits import check
 
-    if count < 1:
-        raise ValueError("need at least one elevation")
-    if count > MAX_ELEVATIONS:
-        raise ValueError(f"at most {MAX_ELEVATIONS} elevations (asked for {count})")
-    if not (0.0 <= max_deg < 90.0):
-        raise ValueError(f"max elevation must be in [0, 90) degrees, got {max_deg}")
+    count = check("elevations", count, "count (elevations)")
+    max_deg = check("max_elevation", max_deg, "max_deg (max elevation)")
     if count == 1:
         return np.array([0.0])
     return np.radians(np.linspace(0.0, max_deg, count))
@@ -236,8 +232,11 @@ def file_crc(path, block=1 << 22) -> tuple:
     """(size, crc32) of a file, read in blocks (about 2.8 GB/s here: 0.14 s for 370 MB)."""
     import zlib
 
+    from .limits import MAX_CACHE_ENTRY_BYTES
+    from .safeio import open_input
+
     crc, size = 0, 0
-    with open(path, "rb") as fh:
+    with open_input(path, MAX_CACHE_ENTRY_BYTES, "cache file", register=False) as fh:
         while block_ := fh.read(block):
             crc = zlib.crc32(block_, crc)
             size += len(block_)
@@ -255,8 +254,9 @@ def _load_operator(folder, theta_o=None):
     try:
         if not is_marked(folder):
             return None
-        with open(os.path.join(folder, _SEAL)) as fh:
-            seal = json.load(fh)
+        from .safeio import read_input
+
+        seal = json.loads(read_input(os.path.join(folder, _SEAL), 1 << 16, "cache seal", register=False))
         for name in _FILES:
             path = os.path.join(folder, name)
             if not stat.S_ISREG(os.stat(path).st_mode) or list(file_crc(path)) != list(seal["files"][name]):
@@ -265,7 +265,7 @@ def _load_operator(folder, theta_o=None):
         views = np.load(os.path.join(folder, "theta_o.npy"))
         offsets = np.load(os.path.join(folder, "offsets.npy"))
         parts = {k: np.load(os.path.join(folder, f"{k}.npy"), mmap_mode="r") for k in _PARTS}
-    except (OSError, ValueError, EOFError, KeyError, TypeError):
+    except (OSError, ValueError, EOFError, KeyError, TypeError):  # UnsafePath is a ValueError
         return None
     if theta_o is not None and (views.shape != np.shape(theta_o) or not np.array_equal(views, theta_o)):
         return None

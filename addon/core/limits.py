@@ -29,6 +29,8 @@ MAX_JSON_LIST = MAX_ELEVATIONS  # values per profile list
 MAX_NBRDF_BYTES = 64 << 20  # a Neural-BRDF .npz
 MAX_NBRDF_MEMBERS = 6 * 2000  # arrays in one .npz: six per network, up to 2000 networks
 MAX_CACHE_ENTRY_BYTES = 1 << 30  # one cache file (the largest operator part is ~200 MB)
+MAX_SHADER_SOURCE_BYTES = 1 << 20  # one of the add-on's OSL sources (~20 KB)
+MAX_JOURNAL_ENTRY_BYTES = 1 << 16  # one record of the journal of temporaries
 MAX_SET_MATERIALS = 5000  # materials of an analysed set (fits.json) shown on the region plot
 MAX_SET_JSON_BYTES = 10 << 20  # that fits.json: analyze writes ~1.3 KB a material, 6.5 MB at 5000
 
@@ -54,3 +56,120 @@ def check_int(value, name, low, high):
     if not low <= v <= high:
         raise ValueError(f"{name}: must be between {low} and {high}, got {v}")
     return v
+
+
+# --- every numeric input: a declared finite range --------------------------------------------
+# One table for the command line's flags, the extension's properties and the engine's public
+# functions, so that a value refused in one is refused in all, with one line naming the input.
+# A range bounds what is accepted at all; inside it the engine may still clamp to what a
+# material can reach (the edit's reachable region), with a warning.
+
+MAX_ENERGY_SCALE = 16.0  # strength, colour, grazing boost: 16x the measured energy
+MU_SLOPE_RANGE = (-2.0, 0.0)  # the panel's slider: [-1, 0] widened to hold measured slopes
+SIGMA2_RANGE = (1e-8, 0.8224670334241132)  # (0, pi^2/12]: a Lambertian slice's variance
+MAX_CORRELATION_A = 100.0  # |a| of the correlation quadratic; analysed sets give |a| < 2
+
+
+class Range:
+    """The accepted values of one numeric input: [low, high], whole numbers if ``integer``;
+    ``flag`` is its name on the command line, used in the one-line error."""
+
+    __slots__ = ("name", "low", "high", "integer", "flag")
+
+    def __init__(self, name, low, high, integer=False, flag=None):
+        self.name, self.low, self.high, self.integer = name, low, high, integer
+        self.flag = flag or "--" + name.replace("_", "-")
+
+    def describe(self) -> str:
+        return f"between {self.low:g} and {self.high:g}" + (" (a whole number)" if self.integer else "")
+
+    def check(self, value, label=None):
+        """``value`` as a float (an int if ``integer``) inside the range; ValueError otherwise,
+        one line naming ``label`` (default: the flag)."""
+        label = label or self.flag
+        if isinstance(value, bool) or not isinstance(value, (int, float)) and not hasattr(value, "__float__"):
+            raise ValueError(f"{label}: not a number: {value!r}")
+        try:
+            v = float(value)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"{label}: not a number: {value!r}") from None
+        if v != v or v in (float("inf"), float("-inf")):
+            raise ValueError(f"{label}: not a finite number: {value!r}")
+        if self.integer and v != int(v):
+            raise ValueError(f"{label}: not a whole number: {value!r}")
+        if v < self.low:
+            raise ValueError(f"{label}: must be at least {self.low:g} ({self.describe()}), got {value!r}")
+        if v > self.high:
+            raise ValueError(f"{label}: must be at most {self.high:g} ({self.describe()}), got {value!r}")
+        return int(v) if self.integer else v
+
+    def parse(self, text):
+        """The value of a command-line argument (argparse's ``type``: it names the flag)."""
+        import argparse
+
+        try:
+            number = int(text) if self.integer else float(text)
+        except ValueError:
+            try:
+                number = float(text)  # '1e3' for a whole number, or a clear 'not a whole number'
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        try:
+            return self.check(number, label="value")
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[1]) from None
+
+    def prop(self) -> dict:
+        """min/max for a bpy property (Blender clamps to them)."""
+        return {"min": self.low, "max": self.high}
+
+
+RANGES = {
+    r.name: r
+    for r in (
+        # the edit's sliders
+        Range("strength", 0.0, MAX_ENERGY_SCALE, flag="--alpha-scale"),
+        Range("colour", 0.0, MAX_ENERGY_SCALE, flag="--alpha"),
+        Range("grazing_boost", 0.0, MAX_ENERGY_SCALE),
+        Range("mu_slope", *MU_SLOPE_RANGE, flag="--mu"),
+        Range("sigma2", *SIGMA2_RANGE),
+        Range("correlation_a", -MAX_CORRELATION_A, MAX_CORRELATION_A),
+        # analysis
+        Range("elevations", 1, MAX_ELEVATIONS, integer=True),
+        Range("max_elevation", 0.0, 89.99),  # [0, 90): the view at 90 deg sees nothing
+        Range("max_order", 0, MAX_ORDER, integer=True),
+        Range("jobs", 1, MAX_JOBS, integer=True),
+        # preview and render
+        Range("size", 1, MAX_RENDER_SIZE, integer=True),
+        Range("samples", 1, MAX_SAMPLES, integer=True),
+        Range("lobe_samples", 1, MAX_LOBE_SAMPLES, integer=True),
+        Range("bake_samples", 1, MAX_BAKE_SAMPLES, integer=True),
+    )
+}
+
+
+def check(name, value, label=None):
+    """``value`` checked against the declared range of input ``name`` (see RANGES)."""
+    return RANGES[name].check(value, label)
+
+
+def check_targets(targets, labels=None):
+    """An edit's slider values (core.edit.EditTargets) inside their declared ranges; the
+    first one outside raises ValueError naming it: by ``labels[name]`` (the panel's slider
+    names), else by its command-line flag."""
+    labels = labels or {}
+
+    def one(name, value):
+        check(name, value, labels.get(name))
+
+    one("strength", targets.strength)
+    colour = tuple(targets.colour)
+    if len(colour) != 3:
+        raise ValueError(f"{labels.get('colour', '--alpha')}: expected three numbers R,G,B, got {len(colour)}")
+    for v in colour:
+        one("colour", v)
+    one("grazing_boost", targets.grazing_boost)
+    for name in ("mu_slope", "sigma2", "correlation_a"):
+        if getattr(targets, name, None) is not None:
+            one(name, getattr(targets, name))
+    return targets

@@ -193,11 +193,15 @@ def compute_profiles(
     ``floor`` picks the automatic floor: ``min`` (the paper's) or ``robust`` (diffuse_floor).
     ``progress(done, total)`` is called while the (cached) operator is first built.
     """
-    if not 0 <= max_order <= MAX_ORDER:
-        raise ValueError(f"max order must be 0..{MAX_ORDER}")
+    from .limits import check
+
+    max_order = check("max_order", max_order, "max_order")
     if floor not in FLOORS:
         raise ValueError(f"unknown diffuse floor {floor!r} ({' or '.join(FLOORS)})")
     theta_o = default_views() if theta_o is None else np.asarray(theta_o, dtype=float)
+    check("elevations", theta_o.size, "theta_o (number of views)")
+    if theta_o.ndim != 1 or not np.all(np.isfinite(theta_o)) or theta_o.min() < 0 or theta_o.max() >= np.pi / 2:
+        raise ValueError("theta_o: view elevations must be finite, in [0, pi/2) radians")
     if split:
         kd = (
             diffuse_floor(table, cache_dir, floor)

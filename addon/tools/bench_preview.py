@@ -348,3 +348,58 @@ def bench_preview(quick=False):
     out += [v for v in verdicts if "OSL moment model" in v]
     out += [""] + [f"- {n}" for n in notes]
     return out
+
+
+def render_default_error(names=("ggx_glossy", "ggx_mirror"), extra=(("--path", "osl"),), gt_spp=GT_SPP):
+    """``python -m addon render`` as a user runs it (its defaults: 256², studio, original and
+    edited), against the converged reference; then with each of ``extra``'s options for
+    comparison. Returns markdown lines (BENCHMARKS.md, issue 29)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    import samples
+
+    from ..core.merl import read_merl, write_merl
+    from ..core.render import TableBRDF, normalized_rmse, relative_rmse, sphere_layout
+    from ..wheel import import_bpy
+
+    bpy = import_bpy()
+    env, _ = _environment(bpy)
+    layout = sphere_layout(SIZE, SIZE, 2)
+    mask = layout.interior_mask()
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    lines = [
+        "| material | `render` options | time | rel. RMSE per pixel (RMSE/RMS) |",
+        "|---|---|---|---|",
+    ]
+    with tempfile.TemporaryDirectory(prefix="brdfm-render-default-") as tmp:
+        for name in names:
+            path = samples.sample_path(name)
+            table = read_merl(path)
+            edited = edited_table(table, name)
+            edited_path = os.path.join(tmp, f"{name.replace('/', '-')}-edited.binary")
+            write_merl(edited, edited_path)
+            gt, noise, _ = ground_truth(layout, [TableBRDF(table), TableBRDF(edited)], env, name, gt_spp)
+            for options in ((), *extra):
+                out = os.path.join(tmp, "render.exr")
+                t = time.perf_counter()
+                subprocess.run(
+                    [sys.executable, "-m", "addon", "render", path, "--edited", edited_path, *options, "--out", out],
+                    cwd=root,
+                    check=True,
+                    capture_output=True,
+                )
+                took = time.perf_counter() - t
+                img = _read_exr(bpy, out)
+                e = relative_rmse(img, gt, mask), normalized_rmse(img, gt, mask)
+                what = " ".join(options) or "(defaults)"
+                lines.append(f"| {name} | {what} | {took:.1f} s | {e[0]:.2%} ({e[1]:.2%}) |")
+            lines.append(f"| {name} | ground truth {gt_spp} spp, its own noise | | {noise:.2%} |")
+    return lines
+
+
+if __name__ == "__main__":  # python -m addon.tools.bench_preview [GT_SPP]: render's default (issue 29)
+    import sys
+
+    print("\n".join(render_default_error(gt_spp=int(sys.argv[1]) if len(sys.argv) > 1 else GT_SPP)))

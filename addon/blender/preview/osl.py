@@ -16,6 +16,7 @@ import bpy
 import numpy as np
 
 from ...core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
+from ...core.limits import MAX_SHADER_SOURCE_BYTES
 
 SHADER_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "shaders")
 SHADERS = {"model": "brdf_moments_model", "tabulated": "brdf_moments_table"}
@@ -50,19 +51,27 @@ def compile_shader(name: str, folder=None) -> str:
     import _cycles
 
     src = os.path.join(SHADER_DIR, name + ".osl")
+    from ...core.cachefs import verified, write_seal
+    from ...core.safeio import read_input
+
     h = hashlib.sha256()
     for part in sorted(os.listdir(SHADER_DIR)):
         if part.endswith((".osl", ".h")):
-            with open(os.path.join(SHADER_DIR, part), "rb") as fh:
-                h.update(part.encode() + fh.read())
+            h.update(
+                part.encode()
+                + read_input(os.path.join(SHADER_DIR, part), MAX_SHADER_SOURCE_BYTES, "shader source", register=False)
+            )
     from ...core.atomic import atomic_path, own_folder
 
     folder = own_folder(folder or cache_dir())
     dst = os.path.join(folder, f"{name}-{h.hexdigest()[:12]}.oso")
-    if not os.path.isfile(dst):
+    # Sealed like every cache entry: a damaged .oso (it made every OSL render fail, on every
+    # run) or one without its seal is compiled again, never trusted.
+    if not verified(dst):
         with atomic_path(dst, ".oso") as tmp:
             if not _cycles.osl_compile(src, tmp):
                 raise RuntimeError(f"{src}: OSL compilation failed (see the console for the compiler's errors)")
+        write_seal(dst)
     return dst
 
 

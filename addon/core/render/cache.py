@@ -13,6 +13,7 @@ from collections import OrderedDict
 
 import numpy as np
 
+from ..safeio import read_input
 from .estimators import bake_sphere
 
 
@@ -21,8 +22,7 @@ def _code_version():
     h = hashlib.sha256(b"bake")
     here = os.path.dirname(os.path.abspath(__file__))
     for name in ("envmap.py", "estimators.py", "lights.py", "lobe.py", "scene.py"):
-        with open(os.path.join(here, name), "rb") as fh:
-            h.update(name.encode() + fh.read())
+        h.update(name.encode() + read_input(os.path.join(here, name), 1 << 20, "engine source", register=False))
     return h.hexdigest()[:16]
 
 

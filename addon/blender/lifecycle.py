@@ -1,0 +1,156 @@
+"""Everything the add-on leaves running between two events, and how unregister stops it.
+
+Unregister must be safe at any moment: during a job, while the live preview or a plot is
+being drawn in a thread, after Build Preview, and at Blender's exit (``addon_utils.disable_all``).
+So every thread and timer the add-on starts goes through here:
+
+- ``start_thread(target, name, stop)`` runs ``target`` in a daemon thread and remembers it with
+  ``stop``, a function that asks it to end early (a job's cancel, the live preview's newer
+  generation). ``shutdown`` calls each ``stop``, then joins the threads (bounded).
+- ``register_timer(fn, first_interval)`` registers a ``bpy.app.timers`` function and remembers
+  it; ``shutdown`` unregisters the ones still registered, so no callback of an unregistered
+  add-on ever runs (it would reach for ``Material.brdf_moments``, which is gone).
+- ``on_shutdown(fn)`` adds a clean-up step (the job runner cancels its jobs and kills their
+  child processes, gives their window-manager timers and progress back).
+
+``import_multiprocessing`` is the other half. Importing ``multiprocessing`` aliases
+``sys.modules['__mp_main__']`` to the ``__main__`` of the moment. Inside a script run by
+``blender -P`` (or the Text Editor) that is a temporary module, and when the script ends Blender
+(3.4 to 5.0, ``PYMODULE_CLEAR_WORKAROUND`` in ``bpy_interface_run.cc``) sets its dictionary to
+NULL and keeps the module object. At exit ``addon_utils.disable_all`` reads an attribute of every
+module in ``sys.modules``; on that one the lookup of ``__getattr__`` dereferences the NULL
+dictionary: the segmentation fault after ``blender -b -P samples/demo.py`` (exit code 139). The
+alias is only used by processes that ``spawn``; the add-on forks. So the alias is pointed at a
+module of its own, which lives as long as the process.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+import types
+
+_THREADS: list = []  # (thread, stop or None)
+_TIMERS: list = []  # functions registered with bpy.app.timers
+_CLEANUPS: list = []  # functions run by shutdown, in order
+_LOCK = threading.Lock()
+# A module of our own for multiprocessing's alias of __main__ (see the module's docstring).
+_MP_MAIN = types.ModuleType("__mp_main__")
+
+
+def _module_dict(mod):
+    """A module's dictionary read through the type's descriptor: None when Blender cleared it,
+    without the attribute lookup that would dereference it."""
+    try:
+        return types.ModuleType.__dict__["__dict__"].__get__(mod)
+    except (TypeError, AttributeError):
+        return None
+
+
+def detach_mp_main() -> bool:
+    """Point ``__mp_main__`` away from a script's temporary ``__main__``; True if it changed."""
+    alias = sys.modules.get("__mp_main__")
+    if alias is None or alias is _MP_MAIN:
+        return False
+    if isinstance(alias, types.ModuleType) and _module_dict(alias) is not None:
+        # Alive now; but if it is the __main__ of a script running at this moment, it dies
+        # with that script. Blender's own __main__ outlives us either way, so take ours.
+        if alias is not sys.modules.get("__main__"):
+            return False
+    sys.modules["__mp_main__"] = _MP_MAIN
+    return True
+
+
+def import_multiprocessing():
+    """``multiprocessing``, imported so that it leaves no alias to a temporary ``__main__``."""
+    import multiprocessing
+
+    detach_mp_main()
+    return multiprocessing
+
+
+# --- threads and timers ----------------------------------------------------------------------
+
+
+def start_thread(target, name, stop=None, args=()) -> threading.Thread:
+    thread = threading.Thread(target=target, args=args, name=name, daemon=True)
+    with _LOCK:
+        _THREADS[:] = [(t, s) for t, s in _THREADS if t.is_alive()]
+        _THREADS.append((thread, stop))
+    thread.start()
+    return thread
+
+
+def threads() -> list:
+    """The add-on's threads still alive."""
+    with _LOCK:
+        return [t for t, _ in _THREADS if t.is_alive()]
+
+
+def register_timer(fn, first_interval=0.0, persistent=False):
+    import bpy
+
+    if not bpy.app.timers.is_registered(fn):
+        bpy.app.timers.register(fn, first_interval=first_interval, persistent=persistent)
+    with _LOCK:
+        # a slider move registers a new debounce function each time: forget the ones that ran
+        _TIMERS[:] = [f for f in _TIMERS if f is fn or bpy.app.timers.is_registered(f)]
+        if fn not in _TIMERS:
+            _TIMERS.append(fn)
+
+
+def timers() -> list:
+    """The add-on's timer functions still registered."""
+    import bpy
+
+    with _LOCK:
+        return [fn for fn in _TIMERS if bpy.app.timers.is_registered(fn)]
+
+
+def on_shutdown(fn):
+    if fn not in _CLEANUPS:
+        _CLEANUPS.append(fn)
+    return fn
+
+
+def shutdown(timeout=30.0) -> dict:
+    """Stop everything the add-on runs: clean-up steps, timers, then threads (each asked to
+    stop, then joined, ``timeout`` seconds in all). Returns what it found, for tests and logs.
+
+    A stopped thread ends at its next check: a job's child is killed at once, the live preview
+    stops between Gauss-Newton steps, but the edit's first set-up (about 1 s cold on a quiet
+    machine) is not interruptible and took over 10 s with the two cores shared four ways."""
+    import bpy
+
+    report = {"cleanups": 0, "timers": 0, "threads": 0, "left": []}
+    for fn in list(_CLEANUPS):
+        try:
+            fn()
+            report["cleanups"] += 1
+        except Exception as exc:  # noqa: BLE001 - one failing step must not stop the others
+            print(f"BRDF Moments: unregister: {type(exc).__name__}: {exc}")
+    with _LOCK:
+        registered, _TIMERS[:] = list(_TIMERS), []
+        running, _THREADS[:] = list(_THREADS), []
+    for fn in registered:
+        if bpy.app.timers.is_registered(fn):
+            bpy.app.timers.unregister(fn)
+            report["timers"] += 1
+    for thread, stop in running:
+        if stop is not None and thread.is_alive():
+            try:
+                stop()
+            except Exception as exc:  # noqa: BLE001
+                print(f"BRDF Moments: unregister: stopping {thread.name}: {type(exc).__name__}: {exc}")
+    deadline = time.monotonic() + timeout
+    for thread, _ in running:
+        if thread.is_alive():
+            report["threads"] += 1
+            thread.join(max(deadline - time.monotonic(), 0.0))
+        if thread.is_alive():
+            report["left"].append(thread.name)
+    if report["left"]:
+        print(f"BRDF Moments: unregister: still running after {timeout:.0f} s: {', '.join(report['left'])}")
+    detach_mp_main()
+    return report

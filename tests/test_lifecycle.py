@@ -1,0 +1,89 @@
+"""Unregister is safe at any moment (issue 29): register -> unregister -> register with a forked
+job, the live preview's work and its timer in flight, under the bpy module (4.5 here, 5.0 in
+tests/test_bpy50_lane.py). The same cycle runs in Debian's Blender 3.4 in tests/test_blender_lane.py."""
+
+import os
+import sys
+
+import pytest
+
+pytestmark = pytest.mark.blender
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "blender"))
+
+
+def check_cycle(result):
+    """What every lane asserts about tests/blender/cycle.py's result."""
+    before, after, again = result["before"], result["after"], result["again"]
+    assert result["load"] == ["FINISHED"] and result["preview"] == ["FINISHED"]
+    # all of it was really in flight when the add-on was unregistered
+    assert before["jobs"] and before["child_alive"] and before["timers"] >= 1
+    assert "brdf_moments: live preview" in before["threads"] and "brdf_moments: Cycle" in before["threads"]
+    # and the unregister ended all of it: no thread, timer, job or child process is left
+    assert after["shutdown"]["left"] == [] and after["threads"] == [] and after["timers"] == 0
+    assert not after["live_timer"] and not after["draw_timer"]
+    assert after["jobs"] == [] and after["history"] == "unregistered"
+    assert not after["child_alive"] and after["child_exitcode"] is not None
+    assert after["wm_timers"] == 0 and after["progress_end"]  # the window manager got its timer back
+    assert after["reports"] == [] and after["posted_after"] == 0  # nothing finished, nothing posted
+    assert not after["property"]
+    assert result["unregister_seconds"] < 45
+    # registered again, the add-on works
+    assert again["property"] and again["load"] == ["FINISHED"] and again["apply"] == ["FINISHED"]
+
+
+def test_register_unregister_register_with_work_in_flight(blender, sample_table, tmp_path):
+    import cycle
+
+    import samples
+
+    sample_table("ggx_glossy")
+    module = "bl_ext.bmtest.brdf_moments"
+    try:
+        result = cycle.run(blender, module, samples.sample_path("ggx_glossy"), str(tmp_path))
+    finally:
+        import addon_utils
+
+        if not hasattr(blender.types.Material, "brdf_moments"):
+            addon_utils.enable(module, default_set=True)
+    check_cycle(result)
+
+
+def test_the_multiprocessing_alias_never_points_at_a_scripts_main(blender):
+    """Blender clears a -P script's temporary __main__ when the script ends; multiprocessing's
+    alias of it then crashed Blender's exit (addon_utils.disable_all reads every module)."""
+    import types
+
+    lifecycle = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.lifecycle"]
+    script_main = types.ModuleType("__main__")
+    saved = sys.modules["__main__"], sys.modules.get("__mp_main__")
+    try:
+        sys.modules["__main__"] = sys.modules["__mp_main__"] = script_main  # as `import multiprocessing` in a script
+        assert lifecycle.detach_mp_main()
+        assert sys.modules["__mp_main__"] is not script_main
+        assert getattr(sys.modules["__mp_main__"], "__addon_enabled__", False) is False
+    finally:
+        sys.modules["__main__"] = saved[0]
+        if saved[1] is not None:
+            sys.modules["__mp_main__"] = saved[1]
+
+
+def test_the_timer_book_forgets_timers_that_ran(blender):
+    """A slider move registers a new debounce timer each time: the book of timers to stop at
+    unregister keeps only those still registered, so a long session does not grow it."""
+    lifecycle = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.lifecycle"]
+    made = []
+    for _ in range(50):
+
+        def once():
+            return None
+
+        made.append(once)
+        lifecycle.register_timer(once, first_interval=100.0)
+    assert set(made) <= set(lifecycle.timers())
+    for fn in made:
+        blender.app.timers.unregister(fn)  # as if each had run
+    last = made[-1]
+    lifecycle.register_timer(last, first_interval=100.0)
+    assert [f for f in lifecycle._TIMERS if f in made] == [last]
+    blender.app.timers.unregister(last)
