@@ -191,14 +191,16 @@ def test_apply_reaches_the_sliders_and_a_cancelled_apply_changes_nothing(lane):
     sliders, apply = st["sliders"]["state"], st["apply"]["state"]
     assert sliders["sigma2"] == pytest.approx(1.6 * sliders["fit_sigma2"], rel=1e-5)
     assert os.path.isfile(apply["edited_path"]) and apply["edited_profiles"]
-    assert apply["achieved_sigma2"] == pytest.approx(sliders["sigma2"], rel=0.05)
-    # The slope moved toward the slider (from the fit's -1.00 to -0.90) and either reached it, or
-    # the panel says it was not reached and what the table re-fits (issue 18: the per-view solve
-    # can leave the fitted slope short; BENCHMARKS "Editing, per view").
-    moved = (apply["achieved_mu_slope"] - sliders["fit_mu_slope"]) / (sliders["mu_slope"] - sliders["fit_mu_slope"])
+    # What the panel announced beside the sliders (SPEC §3: the targets' own fit, not the raw
+    # request) is what the table re-fits to, or the panel says it was not reached and what the
+    # table re-fits (BENCHMARKS "Editing, per view").
+    said = apply["announced"]
+    assert said is not None, apply
+    assert apply["achieved_sigma2"] == pytest.approx(said["sigma2"], rel=0.05)
+    moved = (apply["achieved_mu_slope"] - sliders["fit_mu_slope"]) / (said["mu_slope"] - sliders["fit_mu_slope"])
     assert moved > 0.5, apply
-    if apply["achieved_mu_slope"] != pytest.approx(sliders["mu_slope"], abs=0.01):
-        assert f"mean slope {apply['achieved_mu_slope']:+.3f} for {sliders['mu_slope']:+.3f}" in apply["edit_warnings"]
+    if apply["achieved_mu_slope"] != pytest.approx(said["mu_slope"], abs=0.01):
+        assert f"mean slope {apply['achieved_mu_slope']:+.3f} for {said['mu_slope']:+.3f}" in apply["edit_warnings"]
     # The table Blender wrote, measured again here: its fit is what the panel reports.
     edited = read_merl(apply["edited_path"])
     assert not np.array_equal(edited.rho, read_merl(gold).rho)
@@ -266,10 +268,12 @@ def test_an_apply_in_the_reopened_file(lane):
     assert state["sigma2"] == pytest.approx(1.3 * state["fit_sigma2"], rel=1e-5)
     # The re-fitted variance moved most of the way, and the panel says so if it fell short (the
     # per-view figures are the measure, BENCHMARKS "Editing, per view"; gold x1.3 refits ~7 % low).
-    moved = (state["achieved_sigma2"] - state["fit_sigma2"]) / (state["sigma2"] - state["fit_sigma2"])
+    said = state["announced"]
+    assert said is not None, state
+    moved = (state["achieved_sigma2"] - state["fit_sigma2"]) / (said["sigma2"] - state["fit_sigma2"])
     assert moved > 0.5, state
-    if state["achieved_sigma2"] != pytest.approx(state["sigma2"], rel=0.02):
-        assert f"variance {state['achieved_sigma2']:.4g} for {state['sigma2']:.4g}" in state["edit_warnings"], state
+    if state["achieved_sigma2"] != pytest.approx(said["sigma2"], rel=0.02):
+        assert f"variance {state['achieved_sigma2']:.4g} for {said['sigma2']:.4g}" in state["edit_warnings"], state
     assert state["edited_path"] != st["reopen"]["state"]["edited_path"] and os.path.isfile(state["edited_path"])
     # The live preview ran for these sliders before Apply, so Apply wrote its kept synthesis:
     # the synthesis stage (progress 3/10 to 6/10) is a lookup, not a solve (3-5 s here).

@@ -456,34 +456,41 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
     def announcement(self):
         """The engine's ``Announcement`` for the sliders as they stand, or None (not analysed,
         no lobe, damaged stored analysis): the same call Apply's edit makes first."""
-        from ..core.edit.solve import announce
+        return _announce(*self._announce_inputs())
 
-        prof, fit = self.profiles(), None
+    def _announce_inputs(self):
+        """What the announcement reads, taken from the material (cheap: on the main thread)."""
         try:
-            fit = self.fit()
-            if prof is None or fit is None:
-                return None
-            return announce(prof, fit, self.slider_targets(), self.region())
+            return self.profiles_data if self.analysed else "", self.fit(), self.slider_targets(), self.region()
         except (ValueError, TypeError, KeyError):
-            return None
+            return "", None, None, None
 
     def refresh_announcement(self):
-        """Store what Apply will deliver (the panel draws it beside the sliders)."""
-        import json
-
-        plan = self.announcement() if self.analysed else None
-        if plan is None or None in plan.announced:
-            self.announced_json = ""
+        """Store what Apply will deliver (the panel draws it beside the sliders). In a window it
+        is worked out in a thread (its first call per analysis inverts every view's lobe: many
+        small numpy calls, each waiting for the GIL while the live preview runs), then written
+        by a timer if no newer slider move asked again."""
+        inputs = self._announce_inputs()
+        if bpy.app.background:
+            self.announced_json = _announcement_json(_announce(*inputs))
             return
-        self.announced_json = json.dumps(
-            {
-                "mu_slope": plan.announced[0],
-                "sigma2": plan.announced[1],
-                "out_of_reach": plan.out_of_reach,
-                "clamped": plan.clamped,
-                "nothing_to_do": plan.nothing_to_do,
-            }
-        )
+        from .lifecycle import register_timer, start_thread
+
+        name = self.id_data.name
+        _ANNOUNCED["gen"] = gen = _ANNOUNCED.get("gen", 0) + 1
+
+        def work():
+            text = _announcement_json(_announce(*inputs))
+
+            def place():
+                mat = bpy.data.materials.get(name)
+                if mat is not None and _ANNOUNCED.get("gen") == gen:
+                    mat.brdf_moments.announced_json = text
+                return None
+
+            register_timer(place, first_interval=0.0)
+
+        start_thread(work, "brdf_moments: announce")
 
     def slider_targets(self):
         """The sliders as engine targets; a slider still at its fitted value stays exact.
@@ -507,6 +514,38 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
             ),
             labels=SLIDER_LABELS,
         )
+
+
+_ANNOUNCED: dict = {}  # the latest announcement asked for (a newer slider move wins)
+
+
+def _announce(raw, fit, targets, region):
+    """``solve.announce`` from stored inputs, or None when there is nothing to announce."""
+    from ..core.edit.solve import announce
+
+    prof = unpack_profiles(raw) if raw else None
+    if prof is None or fit is None or targets is None:
+        return None
+    try:
+        return announce(prof, fit, targets, region)
+    except (ValueError, TypeError, KeyError):
+        return None
+
+
+def _announcement_json(plan) -> str:
+    import json
+
+    if plan is None or None in plan.announced:
+        return ""
+    return json.dumps(
+        {
+            "mu_slope": plan.announced[0],
+            "sigma2": plan.announced[1],
+            "out_of_reach": plan.out_of_reach,
+            "clamped": plan.clamped,
+            "nothing_to_do": plan.nothing_to_do,
+        }
+    )
 
 
 def _floor_changed(state):

@@ -155,6 +155,7 @@ def snapshot():
         "achieved_mu_slope": s.achieved_mu_slope,
         "achieved_sigma2": s.achieved_sigma2,
         "edit_warnings": s.edit_warnings,
+        "announced": json.loads(s.announced_json) if s.announced_json else None,
         "preview_material": s.preview_material,
         "scenes": sorted(sc.name for sc in bpy.data.scenes),
         "window_scene": window().scene.name,
