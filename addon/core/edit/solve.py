@@ -292,7 +292,6 @@ class Announcement:
     warnings: list
     fitted: tuple  # the material's own (mu~, sigma~^2)
     region: ReachableRegion | None = None
-
     energy_kept: bool = True  # strength, colour and boost untouched, warp mode
 
     @property
@@ -378,13 +377,8 @@ def edit(
             warnings.append("nothing to do: the request was clamped back to the material's own fit")
         out = table.copy()
         out.path = None
-        res = (
-            _finish(
-                out, mu_t, s2_t, warnings, prof, remeasure, vt, **said, clamped=True, nothing_to_do=plan.nothing_to_do
-            )
-            if plan.nothing_to_do
-            else _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt, **said)
-        )
+        flags = {"clamped": True, "nothing_to_do": True} if plan.nothing_to_do else {}
+        res = _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt, **said, **flags)
         tell(1, 1)
         return res
     if targets.is_energy_only() or (plan.at_fit and targets.grazing_boost == 1.0):
