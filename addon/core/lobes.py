@@ -36,6 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .principled import pixel_share, view_quadrature
+
 N_VIEWS = 18  # texels of the lookup over theta_o in [0, 90°]
 N_LOBES = 3
 N_PHI_H = 24
@@ -138,34 +140,6 @@ def lobes_brdf(fit: LobeFit, wi, wo):
     return out
 
 
-def _quadrature(views_deg, n_phi=N_PHI_H):
-    """Per view: directions wi (n, 3), wo (3,), and weights cos(theta_i) d omega_i through the
-    half vector on the table's square-root spaced theta_h cells."""
-    from .merl import RES_TH
-
-    edges = (np.arange(RES_TH + 1) / RES_TH) ** 2 * (0.5 * np.pi)
-    th, dth = 0.5 * (edges[:-1] + edges[1:]), np.diff(edges)
-    ph = (np.arange(n_phi) + 0.5) / n_phi * 2.0 * np.pi
-    TH, PH = np.meshgrid(th, ph, indexing="ij")
-    h = np.stack((np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)), axis=-1).reshape(-1, 3)
-    dwh = (np.sin(TH) * dth[:, None] * (2.0 * np.pi / n_phi)).ravel()
-    out = []
-    for deg in views_deg:
-        t = math.radians(deg)
-        wo = np.array([math.sin(t), 0.0, math.cos(t)])
-        oh = h @ wo
-        wi = 2.0 * oh[:, None] * h - wo
-        ok = (oh > 0.0) & (wi[:, 2] > 0.0)
-        out.append((wi[ok], wo, (4.0 * oh * dwh * wi[:, 2])[ok]))
-    return out
-
-
-def _pixel_share(deg):
-    """A view's share of a sphere's pixels under an orthographic camera (sin cos theta_o)."""
-    t = math.radians(deg)
-    return max(math.sin(t), math.sin(math.radians(2.5))) * math.cos(t)
-
-
 def _features(rough, wi, wo, shadowing):
     wo_b = np.broadcast_to(wo, wi.shape)
     rows = [np.full(len(wi), 1.0 / np.pi)]
@@ -193,7 +167,7 @@ class _View:
         ok = valid.all(axis=0)
         wi, w, rho = wi[ok], w[ok], rho[:, ok]
         F = _features(dictionary, wi, wo, shadowing)  # (1 + R, n)
-        self.share = _pixel_share(deg)
+        self.share = pixel_share(deg)
         self.G = (F * w) @ F.T
         self.r = (rho * w) @ F.T  # (3, 1 + R)
         self.yy = np.sum(w * rho * rho, axis=1)  # (3,)
@@ -251,7 +225,10 @@ def fit_lobes(table, n_lobes=N_LOBES, shadowing="correlated", n_views=N_VIEWS, d
         raise ValueError(f"unknown shadowing {shadowing!r}")
     dictionary = tuple(dictionary)
     views = texel_views_deg(n_views)
-    vs = [_View(table, deg, wi, wo, w, shadowing, dictionary) for deg, (wi, wo, w) in zip(views, _quadrature(views))]
+    vs = [
+        _View(table, deg, wi, wo, w, shadowing, dictionary)
+        for deg, (wi, wo, w) in zip(views, view_quadrature(views, N_PHI_H))
+    ]
     pick = _greedy(vs, min(n_lobes, len(dictionary)), len(dictionary), [v.share for v in vs])
     idx = [0] + [1 + k for k in pick]
     W = np.zeros((len(idx), n_views, 3))
@@ -271,13 +248,13 @@ def measure(fit: LobeFit, table, views_deg=ERROR_VIEWS_DEG):
 
     num = den = 0.0
     alb_t, alb_f = [], []
-    for deg, (wi, wo, w) in zip(views_deg, _quadrature(views_deg)):
+    for deg, (wi, wo, w) in zip(views_deg, view_quadrature(views_deg, N_PHI_H)):
         wo_b = np.broadcast_to(wo, wi.shape)
         rho, valid = lookup(table, wi, wo_b)
         ok = valid.all(axis=0)
         wi, wo_b, w, rho = wi[ok], wo_b[ok], w[ok], rho[:, ok]
         vals = lobes_brdf(fit, wi, wo_b)
-        s = _pixel_share(deg)
+        s = pixel_share(deg)
         num += s * float(np.sum(w * (vals - rho) ** 2))
         den += s * float(np.sum(w * rho**2))
         alb_t.append(rho @ w)

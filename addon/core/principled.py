@@ -88,9 +88,9 @@ def principled_brdf(fit, wi, wo):
     return (1.0 - fit.metallic) * base / np.pi + (f0 + (1.0 - f0) * sch) * lobe
 
 
-def _quadrature(views_deg=VIEWS_DEG, n_phi=N_PHI_H):
-    """Directions (wi, wo) and weights cos(theta_i) d omega_i, per view, through the half vector
-    (one point per theta_h cell of the table: its square-root spacing resolves narrow peaks)."""
+def view_quadrature(views_deg, n_phi=N_PHI_H):
+    """Per view: (wi (n, 3), wo (3,), weights cos(theta_i) d omega_i), through the half vector,
+    one point per theta_h cell of the table (its square-root spacing resolves narrow peaks)."""
     from .merl import RES_TH
 
     edges = (np.arange(RES_TH + 1) / RES_TH) ** 2 * (0.5 * np.pi)
@@ -99,21 +99,32 @@ def _quadrature(views_deg=VIEWS_DEG, n_phi=N_PHI_H):
     TH, PH = np.meshgrid(th, ph, indexing="ij")
     h = np.stack((np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)), axis=-1).reshape(-1, 3)
     dwh = (np.sin(TH) * dth[:, None] * (2.0 * np.pi / n_phi)).ravel()
-    wis, wos, ws = [], [], []
+    out = []
     for deg in views_deg:
         t = math.radians(deg)
         wo = np.array([math.sin(t), 0.0, math.cos(t)])
         oh = h @ wo
         wi = 2.0 * oh[:, None] * h - wo
         ok = (oh > 0.0) & (wi[:, 2] > 0.0)
-        wis.append(wi[ok])
-        wos.append(np.broadcast_to(wo, wi[ok].shape))
-        # d omega_i = 4 (wo.h) d omega_h; a view's weight is its share of a sphere's pixels
-        # (sin cos theta_o under an orthographic camera): grazing views cover little of the image
-        view_w = max(math.sin(t), math.sin(math.radians(2.5))) * math.cos(t)
-        ws.append((4.0 * oh * dwh * wi[:, 2])[ok] * view_w)
-    sizes = [len(w) for w in ws]
-    return np.concatenate(wis), np.concatenate(wos), np.concatenate(ws), sizes
+        # d omega_i = 4 (wo.h) d omega_h
+        out.append((wi[ok], wo, (4.0 * oh * dwh * wi[:, 2])[ok]))
+    return out
+
+
+def pixel_share(deg):
+    """A view's share of a sphere's pixels under an orthographic camera (sin cos theta_o):
+    grazing views cover little of the image."""
+    t = math.radians(deg)
+    return max(math.sin(t), math.sin(math.radians(2.5))) * math.cos(t)
+
+
+def _quadrature(views_deg=VIEWS_DEG, n_phi=N_PHI_H):
+    """Every view's directions (wi, wo) and weights, each view weighted by its pixel share."""
+    views = view_quadrature(views_deg, n_phi)
+    wis = [wi for wi, _, _ in views]
+    wos = [np.broadcast_to(wo, wi.shape) for wi, wo, _ in views]
+    ws = [w * pixel_share(deg) for deg, (_, _, w) in zip(views_deg, views)]
+    return np.concatenate(wis), np.concatenate(wos), np.concatenate(ws), [len(w) for w in ws]
 
 
 def _box_qp(A, b, ub, iters=8):
