@@ -66,6 +66,7 @@ class Fidelity:
     channels: dict  # 'r', 'g', 'b' -> ChannelFidelity
     profiles: Profiles
     far: float = float("nan")  # worst judged view's energy moved far from its lobe (``far_energy``)
+    far_views: np.ndarray | None = None  # (V,) the same per view (the report writes it)
 
     def worst(self, figure: str) -> float:
         vals = [getattr(c, figure) for c in self.channels.values()]
@@ -270,10 +271,12 @@ def measure(edited, targets: ViewTargets, original: Profiles, reachable=None, ta
         vm = float(np.median(e_var[u, i])) if u.any() else float("nan")
         excluded = [round(float(d), 1) for d in np.degrees(theta[counted[:, i] & ~reachable[:, i]])]
         channels[ch] = ChannelFidelity(ch, int(u.sum()), en, vm, vw, mn, sh, excluded, where)
-    far = float("nan")
-    if tables is not None and use.any():
-        far = float(far_energy(tables[0], tables[1], targets, original)[use.any(axis=1)].max())
-    return Fidelity(channels, prof, far)
+    far, far_views = float("nan"), None
+    if tables is not None:
+        far_views = far_energy(tables[0], tables[1], targets, original)
+        if use.any():
+            far = float(far_views[use.any(axis=1)].max())
+    return Fidelity(channels, prof, far, far_views)
 
 
 def _clean(a):
@@ -321,6 +324,11 @@ def report(result, original: Profiles, source=None) -> dict:
     a = lambda key, ch="avg": np.asarray(got[ch][key], float)  # noqa: E731
     var = lambda ch: 0.5 * (a("sigma_tt", ch) + a("sigma_pp", ch))  # noqa: E731
     fid = result.fidelity.summary() if result.fidelity is not None else None
+    # The edit's fidelity measured the far shares already; a table scaled since (no fidelity) is
+    # measured here.
+    far_views = result.fidelity.far_views if result.fidelity is not None else None
+    if far_views is None and source is not None:
+        far_views = far_energy(result.table, source, vt, original)
     num = lambda v: None if v is None or not math.isfinite(v) else float(v)  # noqa: E731
     return {
         "theta_o": _clean(vt.theta_o),
@@ -349,7 +357,7 @@ def report(result, original: Profiles, source=None) -> dict:
                 ("kurtosis", lambda ch: a("kurt_40", ch)),
             )
         },
-        "far": None if source is None else _clean(far_energy(result.table, source, vt, original)),
+        "far": _clean(far_views) if far_views is not None else None,
         "figures": None if fid is None else {k: (v if isinstance(v, bool) else num(v)) for k, v in fid.items()},
         # A clamp back to the fit changed nothing: that is never a met edit (SPEC §3).
         "meets": bool(fid is not None and fid["meets"] and not result.nothing_to_do),
