@@ -131,6 +131,8 @@ def test_the_session_ran_to_the_end_without_a_traceback(lane):
         "apply_at_once",
         "apply_quiet",
         "apply_cancelled_live",
+        "apply_lobes",
+        "restore_lobes",
     ]
 
 
@@ -249,9 +251,50 @@ def test_build_preview_then_save_and_reopen(lane):
         "edited_profiles",
         "achieved_sigma2",
         "preview_material",
+        "artist",
     ):
         assert back[key] == saved[key], key
     assert back["scenes"] == saved["scenes"]
+
+
+def test_the_artists_material_without_osl(lane):
+    """No OSL in Debian's 3.4: the first Apply put Auto's approximation into the artist's own
+    material, labelled with its stated error; the panel's menu set to the fitted lobes, Apply
+    built them (Diffuse and Glossy GGX nodes, colours from a packed lookup the Layer Weight
+    indexes), EEVEE drew them in the 3D view, and Restore took them out. The stated errors are
+    measured again here on the table Blender wrote (issue 28)."""
+    from addon.core.lobes import LobeFit, fit_lobes, measure
+    from addon.core.merl import read_merl
+
+    data, _, _, _ = lane
+    st = data["steps"]
+    first = st["apply"]["state"]["artist"]
+    assert first["used"] in ("lobes", "principled") and first["linked"], first
+    assert ("GGX lobes" if first["used"] == "lobes" else "Principled approx") in first["label"], first
+    lobes_step = st["apply_lobes"]
+    assert lobes_step["status"] == ["RUNNING_MODAL"] and lobes_step["job"]["outcome"] == "finished", lobes_step
+    art, state = lobes_step["state"]["artist"], lobes_step["state"]
+    assert art["choice"] == "LOBES" and art["used"] == "lobes" and art["linked"] and art["lookup_packed"], art
+    assert "GGX lobes" in art["label"]
+    fit = LobeFit.from_dict(art["lobes"])
+    glossy = [k for k in art["group"] if k in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic")]
+    assert len(glossy) == fit.n_lobes
+    if fit.anisotropic:  # stretched lobes: 3.4's Anisotropic node, its aspect read from the lookup
+        assert glossy == ["ShaderNodeBsdfAnisotropic"] * fit.n_lobes and "ShaderNodeNewGeometry" in art["group"]
+    assert art["group"].count("ShaderNodeTexImage") == fit.lookup_pixels().shape[0]
+    assert "ShaderNodeBsdfDiffuse" in art["group"] and "ShaderNodeLayerWeight" in art["group"]
+    assert fit.shadowing == "separable"  # what 3.4's Cycles renders
+    table = read_merl(state["edited_path"])
+    err, alb = measure(fit, table)
+    assert err == pytest.approx(fit.error, rel=1e-3) and alb == pytest.approx(fit.albedo_error, rel=1e-3, abs=1e-4)
+    assert f"{100 * fit.error:.1f} %" in art["label"]
+    # The window's fit is the engine's for that table (not a stale one).
+    again = fit_lobes(table, shadowing="separable")
+    assert again.roughness == pytest.approx(fit.roughness) and again.error == pytest.approx(fit.error, rel=1e-3)
+    assert os.path.isfile(lobes_step["shot"])
+    back = st["restore_lobes"]
+    assert back["status"] == ["FINISHED"] and not back["state"]["artist"]["linked"]
+    assert back["state"]["artist"]["label"] == "" and back["state"]["artist"]["used"] == ""
 
 
 def test_an_apply_in_the_reopened_file(lane):

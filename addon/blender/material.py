@@ -97,21 +97,41 @@ def fill_principled(group, fit):
     return bsdf
 
 
-def _glossy_node(group):
+def _glossy_node(group, anisotropic=False):
     # Blender 4.0 merged Glossy into the anisotropic node's idname; 3.x has both (and there the
-    # anisotropic one starts at anisotropy 0.5): Glossy itself
-    kind = "ShaderNodeBsdfAnisotropic" if bpy.app.version >= (4, 0, 0) else "ShaderNodeBsdfGlossy"
+    # anisotropic one starts at anisotropy 0.5): Glossy itself, unless the lobe is stretched
+    kind = "ShaderNodeBsdfAnisotropic" if anisotropic or bpy.app.version >= (4, 0, 0) else "ShaderNodeBsdfGlossy"
     node = group.nodes.new(kind)
     node.distribution = "GGX"  # single scattering: the model core.lobes fits
-    _set_input(node, ("Anisotropy",), 0.0)  # isotropic, as fitted
+    _set_input(node, ("Anisotropy",), 0.0)  # isotropic unless the lookup drives it
     return node
+
+
+def _across_plane_of_incidence(group):
+    """N x I, normalised: the tangent across the plane of incidence. Zero at normal
+    view, where the fit keeps every lobe round (anisotropy 0 makes Cycles ignore the tangent)."""
+    geo = group.nodes.new("ShaderNodeNewGeometry")
+    geo.location = (-700, 400)
+    cross = group.nodes.new("ShaderNodeVectorMath")
+    cross.operation = "CROSS_PRODUCT"
+    cross.location = (-500, 400)
+    group.links.new(geo.outputs["Normal"], cross.inputs[0])
+    group.links.new(geo.outputs["Incoming"], cross.inputs[1])
+    unit = group.nodes.new("ShaderNodeVectorMath")  # Cycles takes the tangent's length as given
+    unit.operation = "NORMALIZE"
+    unit.location = (-350, 400)
+    group.links.new(cross.outputs["Vector"], unit.inputs[0])
+    return unit.outputs["Vector"]
 
 
 def fill_lobes(group, fit, image):
     """The group's content for a ``core.lobes`` fit: the view angle u = theta_o / 90° from the
     Layer Weight's facing ratio (1 - |N.I|), one Image Texture per row of the lookup ``image``
     (row r read at v = (r + 1/2) / rows: texel centres, so linear filtering never mixes rows),
-    its colour driving a Diffuse BSDF (row 0) or a GGX Glossy BSDF (row k), all added."""
+    its colour driving a Diffuse BSDF (row 0) or a GGX Glossy BSDF (row k), all added. A
+    stretched lobe reads its aspect q from row K + k; Cycles' anisotropy 1 / sqrt(q) - 1 with the
+    tangent across the plane of incidence gives alpha sqrt(q) across it and alpha / sqrt(q) in it
+    (Cycles' mapping for negative anisotropy, the same in 3.x and 4.x)."""
     group.nodes.clear()
     out = group.nodes.new("NodeGroupOutput")
     out.location = (1000, 0)
@@ -133,10 +153,10 @@ def fill_lobes(group, fit, image):
                 m.inputs[1].default_value = value
         chain.append(m)
     u = chain[-1].outputs[0]
-    rows = fit.weights.shape[0]
-    total = None
-    for r in range(rows):
-        y = -300 * r
+    rows = fit.lookup_pixels().shape[0]
+    tangent = _across_plane_of_incidence(group) if fit.anisotropic else None
+
+    def read_row(r, y):
         xyz = group.nodes.new("ShaderNodeCombineXYZ")
         xyz.location = (-200, y)
         group.links.new(u, xyz.inputs["X"])
@@ -147,16 +167,38 @@ def fill_lobes(group, fit, image):
         tex.interpolation = "Linear"
         tex.extension = "EXTEND"
         group.links.new(xyz.outputs[0], tex.inputs["Vector"])
+        return tex.outputs["Color"]
+
+    total = None
+    for r in range(fit.weights.shape[0]):
+        y = -300 * r
+        colour = read_row(r, y)
         if r == 0:
             bsdf = group.nodes.new("ShaderNodeBsdfDiffuse")
             bsdf.inputs["Roughness"].default_value = 0.0
             bsdf.name = bsdf.label = "diffuse"
         else:
-            bsdf = _glossy_node(group)
+            bsdf = _glossy_node(group, fit.anisotropic)
             bsdf.inputs["Roughness"].default_value = fit.roughness[r - 1]
             bsdf.name = bsdf.label = f"GGX lobe {r} (roughness {fit.roughness[r - 1]:.3f})"
+            if tangent is not None:
+                q = group.nodes.new("ShaderNodeSeparateXYZ")  # the aspect, grey in the image
+                q.location = (150, y - 150)
+                group.links.new(read_row(fit.n_lobes + r, y - 150), q.inputs[0])
+                inv = group.nodes.new("ShaderNodeMath")
+                inv.operation = "POWER"
+                inv.location = (300, y - 150)
+                group.links.new(q.outputs["X"], inv.inputs[0])
+                inv.inputs[1].default_value = -0.5
+                aniso = group.nodes.new("ShaderNodeMath")
+                aniso.operation = "SUBTRACT"
+                aniso.location = (450, y - 150)
+                group.links.new(inv.outputs[0], aniso.inputs[0])
+                aniso.inputs[1].default_value = 1.0
+                group.links.new(aniso.outputs[0], bsdf.inputs["Anisotropy"])
+                group.links.new(tangent, bsdf.inputs["Tangent"])
         bsdf.location = (300, y)
-        group.links.new(tex.outputs["Color"], bsdf.inputs["Color"])
+        group.links.new(colour, bsdf.inputs["Color"])
         if total is None:
             total = bsdf.outputs[0]
         else:
@@ -252,7 +294,8 @@ def apply_lobes(mat, fit, storage="PACK"):
     _texture_file(mat, pixels, storage, LOOKUP_IMAGE, "brdfm-lookup")
     image = bpy.data.images[LOOKUP_IMAGE.format(mat.name)]
     label = (
-        f"BRDF Moments edit ({fit.n_lobes} GGX lobes + diffuse, approx., error {100 * fit.error:.1f} %, "
+        f"BRDF Moments edit ({fit.n_lobes} GGX lobes{' (stretched)' if fit.anisotropic else ''} + diffuse, "
+        f"approx., error {100 * fit.error:.1f} %, "
         f"albedo within {100 * fit.albedo_error:.1f} %)"
     )
     group = apply_group(mat, label)

@@ -463,8 +463,9 @@ def _renders(mat):
         return (
             f"Renders lobes ≈ (error {100 * lobes.error:.1f} %)",
             f"'{mat.name}' renders {lobes.n_lobes} GGX lobes and a diffuse lobe fitted to the edited table, "
-            f"their colours following the view angle: an approximation, BRDF error {100 * lobes.error:.1f} % "
-            f"(cosine-weighted), albedo within {100 * lobes.albedo_error:.1f} %",
+            f"their colours{' and stretch' if lobes.anisotropic else ''} following the view angle: an "
+            f"approximation, BRDF error {100 * lobes.error:.1f} % (cosine-weighted, as Cycles renders it"
+            f"), albedo within {100 * lobes.albedo_error:.1f} %",
         )
     shader = state.principled_fit() if used == "principled" else None
     if shader is not None:

@@ -45,6 +45,11 @@ N_PHI_H = 24
 DICTIONARY = tuple(float(v) for v in np.exp(np.linspace(np.log(0.02), np.log(1.0), 16)))
 ERROR_VIEWS_DEG = tuple(range(0, 81, 5))  # where the error is measured (between texels)
 ALBEDO_WEIGHT = 30.0  # the albedo equation's weight against the BRDF residual's norm
+# A lobe's aspect q per view: its alpha across the plane of incidence over its alpha in it,
+# alpha_across = alpha sqrt(q), alpha_in = alpha / sqrt(q) (both Blenders keep alpha_x alpha_y =
+# alpha²). A lobe round about the mirror direction, as measured highlights often are, is
+# stretched across the plane by about 1 / cos theta_o in half vectors.
+ASPECTS = (1.0, 1.3, 1.7, 2.2, 3.0, 4.0)
 SHADOWING = ("correlated", "separable")
 
 
@@ -64,11 +69,21 @@ class LobeFit:
     shadowing: str  # "correlated" (Blender 4+) or "separable" (3.x)
     error: float  # relative L2 error of the BRDF (cosine and pixel-share weighted, all channels)
     albedo_error: float  # largest relative error of the directional albedo over the views
+    aspect: np.ndarray | None = None  # (K, N_VIEWS): each lobe's aspect q per texel (None: all 1)
+
+    def __post_init__(self):
+        if self.aspect is None:
+            object.__setattr__(self, "aspect", np.ones((len(self.roughness), self.weights.shape[1])))
+
+    @property
+    def anisotropic(self) -> bool:
+        return bool(np.any(np.asarray(self.aspect) != 1.0))
 
     def as_dict(self) -> dict:
         return {
             "roughness": [float(r) for r in self.roughness],
             "weights": np.asarray(self.weights, float).round(6).tolist(),
+            "aspect": np.asarray(self.aspect, float).round(6).tolist(),
             "shadowing": self.shadowing,
             "error": self.error,
             "albedo_error": self.albedo_error,
@@ -80,21 +95,32 @@ class LobeFit:
         r = tuple(float(v) for v in d["roughness"])
         if w.ndim != 3 or w.shape[0] != len(r) + 1 or w.shape[2] != 3 or not np.all(np.isfinite(w)):
             raise ValueError("lobe weights of the wrong shape")
-        return cls(r, w, str(d["shadowing"]), float(d["error"]), float(d["albedo_error"]))
+        q = np.asarray(d.get("aspect", np.ones((len(r), w.shape[1]))), float)
+        if q.shape != (len(r), w.shape[1]) or not np.all(np.isfinite(q)) or np.any(q < 1.0) or np.any(q > 10.0):
+            raise ValueError("lobe aspects of the wrong shape or range")
+        return cls(r, w, str(d["shadowing"]), float(d["error"]), float(d["albedo_error"]), q)
 
     @property
     def n_lobes(self) -> int:
         return len(self.roughness)
 
     def lookup_pixels(self) -> np.ndarray:
-        """The lookup image (1 + K rows, N_VIEWS columns, RGB), bottom row first: row 0 the
-        diffuse colour, row k the colour of lobe k; row r is read at v = (r + 1/2) / rows, column
-        j at u = (j + 1/2) / N_VIEWS = theta_j / 90°."""
-        return np.ascontiguousarray(self.weights, np.float32)
+        """The lookup image, bottom row first: row 0 the diffuse colour, row k the colour of
+        lobe k, and when a lobe is anisotropic rows K + k its aspect q (grey); row r is read at
+        v = (r + 1/2) / rows, column j at u = (j + 1/2) / N_VIEWS = theta_j / 90°."""
+        rows = [self.weights]
+        if self.anisotropic:
+            rows.append(np.repeat(np.asarray(self.aspect, float)[:, :, None], 3, axis=2))
+        return np.ascontiguousarray(np.concatenate(rows, axis=0), np.float32)
 
     def weights_at(self, theta_o_deg) -> np.ndarray:
         """The colours at views ``theta_o_deg`` (1 + K, n, 3), interpolated as the texture does."""
         return _interp_weights(self.weights, np.asarray(theta_o_deg, float))
+
+    def aspect_at(self, theta_o_deg) -> np.ndarray:
+        """Each lobe's aspect at views ``theta_o_deg`` (K, n), interpolated as the texture does."""
+        q = np.asarray(self.aspect, float)[:, :, None]
+        return _interp_weights(q, np.asarray(theta_o_deg, float))[:, :, 0]
 
 
 def _interp_weights(weights, theta_deg):
@@ -107,23 +133,49 @@ def _interp_weights(weights, theta_deg):
     return weights[:, j0] * (1.0 - t)[None, :, None] + weights[:, j1] * t[None, :, None]
 
 
-def ggx_lobe(alpha, wi, wo, shadowing="correlated"):
-    """Cycles' GGX reflection without Fresnel, D G / (4 cos_i cos_o), for unit vectors (..., 3)."""
-    a2 = np.maximum(alpha, 1e-7) ** 2
+def ggx_lobe(alpha, wi, wo, shadowing="correlated", aspect=1.0):
+    """Cycles' GGX reflection without Fresnel, D G / (4 cos_i cos_o), for unit vectors (..., 3).
+    ``aspect`` q (scalar or per point) stretches it across the plane of incidence of ``wo``:
+    alpha sqrt(q) across, alpha / sqrt(q) in it (the tangent the node setup gives Cycles)."""
+    alpha = max(float(alpha), 1e-7)
     h = wi + wo
     h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-    ch2 = np.clip(h[..., 2], 0.0, 1.0) ** 2
-    d = a2 / (np.pi * (1.0 + (a2 - 1.0) * ch2) ** 2)
     ci = np.clip(wi[..., 2], 1e-9, 1.0)
     co = np.clip(wo[..., 2], 1e-9, 1.0)
+    q = np.asarray(aspect, float)
+    if np.all(q == 1.0):
+        a2 = alpha**2
+        ch2 = np.clip(h[..., 2], 0.0, 1.0) ** 2
+        d = a2 / (np.pi * (1.0 + (a2 - 1.0) * ch2) ** 2)
 
-    def lam(c):
-        return 0.5 * (np.sqrt(1.0 + a2 * np.maximum(1.0 / (c * c) - 1.0, 0.0)) - 1.0)
+        def lam(c):
+            return 0.5 * (np.sqrt(1.0 + a2 * np.maximum(1.0 / (c * c) - 1.0, 0.0)) - 1.0)
 
+        lam_i, lam_o = lam(ci), lam(co)
+    else:
+        # axes: "in" along wo's azimuth, "across" perpendicular to it (any pair at normal view)
+        rad = np.hypot(wo[..., 0], wo[..., 1])
+        safe = rad > 1e-12
+        cx = np.where(safe, wo[..., 0] / np.where(safe, rad, 1.0), 1.0)
+        cy = np.where(safe, wo[..., 1] / np.where(safe, rad, 1.0), 0.0)
+        a_in, a_across = alpha / np.sqrt(q), alpha * np.sqrt(q)
+
+        def split(v):
+            return v[..., 0] * cx + v[..., 1] * cy, -v[..., 0] * cy + v[..., 1] * cx
+
+        hx, hy = split(h)
+        hz = np.clip(h[..., 2], 0.0, 1.0)
+        d = 1.0 / (np.pi * a_in * a_across * ((hx / a_in) ** 2 + (hy / a_across) ** 2 + hz * hz) ** 2)
+
+        def lam(v, c):
+            x, y = split(v)
+            return 0.5 * (np.sqrt(1.0 + ((a_in * x) ** 2 + (a_across * y) ** 2) / (c * c)) - 1.0)
+
+        lam_i, lam_o = lam(wi, ci), lam(wo, co)
     if shadowing == "correlated":
-        g = 1.0 / (1.0 + lam(ci) + lam(co))
+        g = 1.0 / (1.0 + lam_i + lam_o)
     elif shadowing == "separable":
-        g = 1.0 / ((1.0 + lam(ci)) * (1.0 + lam(co)))
+        g = 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
     else:
         raise ValueError(f"unknown shadowing {shadowing!r}")
     return d * g / (4.0 * ci * co)
@@ -134,16 +186,18 @@ def lobes_brdf(fit: LobeFit, wi, wo):
     wi, wo = np.asarray(wi, float), np.asarray(wo, float)
     theta = np.degrees(np.arccos(np.clip(wo[:, 2], -1.0, 1.0)))
     w = fit.weights_at(theta)  # (1 + K, n, 3)
+    q = fit.aspect_at(theta) if fit.anisotropic else np.ones((fit.n_lobes, len(theta)))
     out = w[0].T / np.pi
     for k, r in enumerate(fit.roughness):
-        out = out + w[k + 1].T * ggx_lobe(r * r, wi, wo, fit.shadowing)[None, :]
+        out = out + w[k + 1].T * ggx_lobe(r * r, wi, wo, fit.shadowing, q[k])[None, :]
     return out
 
 
-def _features(rough, wi, wo, shadowing):
+def _features(rough, wi, wo, shadowing, aspects=(1.0,)):
+    """Diffuse, then every (roughness, aspect) pair, aspects varying fastest."""
     wo_b = np.broadcast_to(wo, wi.shape)
     rows = [np.full(len(wi), 1.0 / np.pi)]
-    rows += [ggx_lobe(r * r, wi, wo_b, shadowing) for r in rough]
+    rows += [ggx_lobe(r * r, wi, wo_b, shadowing, q) for r in rough for q in aspects]
     return np.stack(rows)
 
 
@@ -157,19 +211,31 @@ def _nnls_gram(G, b):
 
 
 class _View:
-    """One view's normal equations over the whole dictionary (diffuse first), per channel, with
-    the albedo equation folded in."""
+    """One view's normal equations over a set of lobes (diffuse first), per channel, with the
+    albedo equation folded in. ``with_lobes`` makes them again for other lobes, the table's
+    values at the quadrature kept."""
 
-    def __init__(self, table, deg, wi, wo, w, shadowing, dictionary):
+    def __init__(self, table, deg, wi, wo, w, shadowing, dictionary, aspects=(1.0,)):
         from .merl import lookup
 
         rho, valid = lookup(table, wi, np.broadcast_to(wo, wi.shape))
         ok = valid.all(axis=0)
-        wi, w, rho = wi[ok], w[ok], rho[:, ok]
-        F = _features(dictionary, wi, wo, shadowing)  # (1 + R, n)
+        self.deg, self.wo, self.shadowing = deg, wo, shadowing
+        self.wi, self.w, self.rho = wi[ok], w[ok], rho[:, ok]
         self.share = pixel_share(deg)
+        self._normal_equations(dictionary, aspects)
+
+    def with_lobes(self, rough, aspects):
+        other = object.__new__(_View)
+        other.__dict__.update({k: self.__dict__[k] for k in ("deg", "wo", "shadowing", "wi", "w", "rho", "share")})
+        other._normal_equations(rough, aspects)
+        return other
+
+    def _normal_equations(self, rough, aspects):
+        wi, w, rho = self.wi, self.w, self.rho
+        F = _features(rough, wi, self.wo, self.shadowing, aspects)  # (1 + R Q, n)
         self.G = (F * w) @ F.T
-        self.r = (rho * w) @ F.T  # (3, 1 + R)
+        self.r = (rho * w) @ F.T  # (3, 1 + R Q)
         self.yy = np.sum(w * rho * rho, axis=1)  # (3,)
         a = F @ w  # each feature's albedo at this view
         alb = rho @ w  # (3,)
@@ -191,52 +257,103 @@ class _View:
         return x, cost
 
 
-def _greedy(vs, n_lobes, n_dict, shares):
-    """Indices (into the dictionary) of ``n_lobes`` lobes picked greedily for the views ``vs``:
-    each step adds the one that lowers the pixel-share weighted cost (channel sum) most."""
+def _cost_fn(vs):
+    """The pixel-share weighted cost per view (channel sum) of a set of columns per view."""
     Ga = np.stack([v.Ga for v in vs])  # (V, M, M)
     ra = np.stack([v.ra.sum(axis=0) for v in vs])  # (V, M)
     yy = np.array([v.yya.sum() for v in vs])
-    sh = np.asarray(shares, float)
+    rows = np.arange(len(vs))[:, None]
+
+    def costs(cols):
+        G = Ga[rows[:, :, None], cols[:, :, None], cols[:, None, :]]
+        G = G + (1e-10 * np.trace(G, axis1=1, axis2=2) / cols.shape[1])[:, None, None] * np.eye(cols.shape[1])
+        b = ra[rows, cols]
+        x = np.linalg.solve(G, b[:, :, None])[:, :, 0]  # unconstrained first: usually feasible
+        for m in np.flatnonzero((x < 0.0).any(axis=1)):
+            x[m] = _nnls_gram(G[m], b[m])
+        return np.einsum("vi,vij,vj->v", x, G, x) - 2.0 * np.sum(x * b, axis=1) + yy
+
+    return costs
+
+
+def _greedy(vs, n_lobes, n_dict, shares):
+    """Indices (into the dictionary) of ``n_lobes`` lobes picked greedily for the views ``vs``:
+    each step adds the one that lowers the pixel-share weighted cost (channel sum) most."""
+    costs, sh, V = _cost_fn(vs), np.asarray(shares, float), len(vs)
     chosen = []
     for _ in range(min(n_lobes, n_dict)):
         best = None
         for k in range(n_dict):
             if k in chosen:
                 continue
-            idx = [0] + [1 + j for j in sorted(chosen + [k])]
-            G = Ga[:, idx][:, :, idx]
-            G = G + (1e-10 * np.trace(G, axis1=1, axis2=2) / len(idx))[:, None, None] * np.eye(len(idx))
-            b = ra[:, idx]
-            x = np.linalg.solve(G, b[:, :, None])[:, :, 0]  # unconstrained first: usually feasible
-            for m in np.flatnonzero((x < 0.0).any(axis=1)):
-                x[m] = _nnls_gram(G[m], b[m])
-            cost = float(np.sum(sh * (np.einsum("vi,vij,vj->v", x, G, x) - 2.0 * np.sum(x * b, axis=1) + yy)))
+            cols = np.broadcast_to(np.array([0] + [1 + j for j in sorted(chosen + [k])]), (V, len(chosen) + 2))
+            cost = float(np.sum(sh * costs(cols)))
             if best is None or cost < best[0]:
                 best = (cost, k)
         chosen.append(best[1])
     return sorted(chosen)
 
 
-def fit_lobes(table, n_lobes=N_LOBES, shadowing="correlated", n_views=N_VIEWS, dictionary=DICTIONARY) -> LobeFit:
+def _choose_aspects(vs, n_lobes, n_aspects, shares, round_views=(0,), passes=2):
+    """Each lobe's aspect per view (indices (K, V)) for views ``vs`` whose columns are the
+    lobes' aspects (lobe k, aspect a at 1 + k n_aspects + a): coordinate descent from round
+    lobes, each lobe in turn taking per view the aspect that costs least with the others fixed.
+    Views in ``round_views`` keep aspect 1."""
+    costs, V = _cost_fn(vs), len(vs)
+    pick = np.zeros((n_lobes, V), int)
+    allowed = np.ones((n_aspects, V), bool)
+    allowed[1:, list(round_views)] = False
+    for _ in range(passes):
+        for k in range(n_lobes):
+            table = np.full((n_aspects, V), np.inf)
+            for a in range(n_aspects):
+                trial = pick.copy()
+                trial[k] = a
+                cols = np.concatenate([np.zeros((1, V), int), 1 + np.arange(n_lobes)[:, None] * n_aspects + trial])
+                table[a] = np.where(allowed[a], costs(cols.T), np.inf)
+            pick[k] = np.argmin(table, axis=0)
+    return pick
+
+
+def fit_lobes(
+    table,
+    n_lobes=N_LOBES,
+    shadowing="correlated",
+    n_views=N_VIEWS,
+    dictionary=DICTIONARY,
+    aspects=ASPECTS,
+) -> LobeFit:
     """Fit the model above to a MerlTable (missing cells left out). One set of roughness values
-    serves every view (a roughness picked per view was measured too: no gain, issue 28)."""
+    serves every view (a roughness picked per view was measured too: no gain, issue 28); each
+    lobe's aspect may change from view to view (``aspects=(1.0,)``: isotropic lobes)."""
     if shadowing not in SHADOWING:
         raise ValueError(f"unknown shadowing {shadowing!r}")
-    dictionary = tuple(dictionary)
+    dictionary, aspects = tuple(dictionary), tuple(float(q) for q in aspects)
+    if not aspects or aspects[0] != 1.0 or any(not 1.0 <= q <= 10.0 for q in aspects):
+        raise ValueError("aspects must start at 1 and lie in [1, 10]")
     views = texel_views_deg(n_views)
     vs = [
         _View(table, deg, wi, wo, w, shadowing, dictionary)
         for deg, (wi, wo, w) in zip(views, view_quadrature(views, N_PHI_H))
     ]
+    # The roughness values among round lobes, then each lobe's aspect per view (the first texel
+    # stays round: at normal view the plane of incidence, the lobe's tangent, is undefined).
     pick = _greedy(vs, min(n_lobes, len(dictionary)), len(dictionary), [v.share for v in vs])
-    idx = [0] + [1 + k for k in pick]
-    W = np.zeros((len(idx), n_views, 3))
-    for j, v in enumerate(vs):
-        W[:, j, :] = v.solve(idx)[0].T
     rough = tuple(dictionary[k] for k in pick)
-    err, alb_err = measure(LobeFit(rough, W, shadowing, 0.0, 0.0), table)
-    return LobeFit(rough, W, shadowing, err, alb_err)
+    nq = len(aspects)
+    if nq > 1:
+        vs = [v.with_lobes(rough, aspects) for v in vs]
+        qi = _choose_aspects(vs, len(rough), nq, [v.share for v in vs])
+    else:
+        vs = [v.with_lobes(rough, aspects) for v in vs]
+        qi = np.zeros((len(rough), len(vs)), int)
+    W = np.zeros((1 + len(rough), n_views, 3))
+    for j, v in enumerate(vs):
+        idx = [0] + [1 + n * nq + int(qi[n, j]) for n in range(len(rough))]
+        W[:, j, :] = v.solve(idx)[0].T
+    q = np.asarray(aspects)[qi]
+    err, alb_err = measure(LobeFit(rough, W, shadowing, 0.0, 0.0, q), table)
+    return LobeFit(rough, W, shadowing, err, alb_err, q)
 
 
 def measure(fit: LobeFit, table, views_deg=ERROR_VIEWS_DEG):
@@ -263,3 +380,57 @@ def measure(fit: LobeFit, table, views_deg=ERROR_VIEWS_DEG):
     held = alb_t > 1e-3 * max(float(alb_t.max()), 1e-12)
     alb_err = float(np.max(np.abs(alb_f - alb_t)[held] / alb_t[held])) if held.any() else 0.0
     return math.sqrt(num / den) if den > 0 else 0.0, alb_err
+
+
+NEAR_MIRROR_DEG = 0.3  # half-vector rings this close to the mirror bound every node setup
+RING_HARMONICS = 2  # the azimuthal orders a closure may follow on such a ring (1, cos, sin, cos 2, sin 2)
+RING_AZIMUTHS = 96
+
+
+def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg=NEAR_MIRROR_DEG):
+    """A lower bound on ``measure``'s BRDF error for any node setup of isotropic closures (issue 28).
+
+    An isotropic closure (Diffuse, Glossy, Principled, Sheen; EEVEE renders every closure so)
+    whose colour follows only the view changes, on a ring of half vectors within a third of a
+    degree of the normal, only smoothly with the ring's azimuth (through cos theta_i and the
+    shadowing, by a few per cent): within the span of the first ``RING_HARMONICS`` Fourier
+    orders, which also holds the cos 2 phi of a mildly anisotropic lobe. What the table does on
+    those rings outside that span, no such setup follows. Returns that part's share of the
+    table's norm in ``measure``'s weighting (the same denominator; the rings integrated more
+    finely over azimuth, each by its weighted least-squares residual)."""
+    from .merl import RES_TH, lookup
+
+    den = 0.0
+    for deg, (wi, wo, w) in zip(views_deg, view_quadrature(views_deg, N_PHI_H)):
+        rho, valid = lookup(table, wi, np.broadcast_to(wo, wi.shape))
+        ok = valid.all(axis=0)
+        den += pixel_share(deg) * float(np.sum(w[ok] * rho[:, ok] ** 2))
+    if den <= 0.0:
+        return 0.0
+    edges = (np.arange(RES_TH + 1) / RES_TH) ** 2 * (0.5 * np.pi)
+    rings = int(np.searchsorted(edges, math.radians(theta_h_max_deg)))
+    ph = (np.arange(RING_AZIMUTHS) + 0.5) / RING_AZIMUTHS * 2.0 * np.pi
+    basis = [np.ones_like(ph)]
+    for m in range(1, RING_HARMONICS + 1):
+        basis += [np.cos(m * ph), np.sin(m * ph)]
+    B = np.stack(basis, axis=1)
+    num = 0.0
+    for deg in views_deg:
+        t = math.radians(deg)
+        wo = np.array([math.sin(t), 0.0, math.cos(t)])
+        for k in range(rings):
+            th, dth = 0.5 * (edges[k] + edges[k + 1]), edges[k + 1] - edges[k]
+            h = np.stack((np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.full_like(ph, np.cos(th))), axis=-1)
+            oh = h @ wo
+            wi = 2.0 * oh[:, None] * h - wo
+            w = 4.0 * oh * math.sin(th) * dth * (2.0 * np.pi / len(ph)) * wi[:, 2]
+            rho, valid = lookup(table, wi, np.broadcast_to(wo, wi.shape))
+            if not valid.all() or np.any(wi[:, 2] <= 0.0):
+                continue
+            # The part no closure follows: the residual of the weighted least-squares fit of
+            # the ring by the span of B (the best any closure can do there).
+            Bw = B * w[:, None]
+            coef = np.linalg.solve(B.T @ Bw, Bw.T @ rho.T)  # (orders, 3)
+            r = rho - (B @ coef).T
+            num += pixel_share(deg) * float(np.sum(w * r * r))
+    return math.sqrt(num / den)

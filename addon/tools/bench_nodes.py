@@ -2,7 +2,8 @@
 (issue 28), engine only. For every measured material and its edits (σ̃² ×0.5, ×2, strength
 0.5), the lobe mixture the nodes render (``core.lobes``) and the single Principled BSDF
 (``core.principled``) against the edited table: BRDF error and directional-albedo error (as
-each fit states them), and the lobe fit's time. Prints a markdown table and a summary."""
+each fit states them), the lobe fit's time, and the table's near-mirror floor (the error no
+node setup can go below, ``lobes.near_mirror_floor``). Prints a markdown table and a summary."""
 
 from __future__ import annotations
 
@@ -38,25 +39,27 @@ def edited_tables(table):
 def bench_nodes(names, principled=True, out=print):
     import samples
 
-    from ..core.lobes import fit_lobes
+    from ..core.lobes import fit_lobes, near_mirror_floor
     from ..core.merl import read_merl
     from ..core.principled import fit_principled
 
     out(
-        "| material | edit | lobes: BRDF error | lobes: albedo error | Principled: BRDF | Principled: albedo | fit time |"
+        "| material | edit | lobes: BRDF error | lobes: albedo error | Principled: BRDF | Principled: albedo "
+        "| floor (any nodes) | fit time |"
     )
-    out("|---|---|---|---|---|---|---|")
-    errs, albs, times, perrs, palbs = [], [], [], [], []
+    out("|---|---|---|---|---|---|---|---|")
+    errs, albs, times, perrs, palbs, floors = [], [], [], [], [], []
     for name in names:
         table = read_merl(samples.sample_path(name))
         for label, t in edited_tables(table):
             if isinstance(t, Exception):
-                out(f"| {name} | {label} | not editable: {t} | | | | |")
+                out(f"| {name} | {label} | not editable: {t} | | | | | |")
                 continue
             t0 = time.perf_counter()
             f = fit_lobes(t)
             took = time.perf_counter() - t0
             p = fit_principled(t) if principled else None
+            floors.append(near_mirror_floor(t))
             errs.append(f.error)
             albs.append(f.albedo_error)
             times.append(took)
@@ -65,7 +68,10 @@ def bench_nodes(names, principled=True, out=print):
                 perrs.append(p.error)
                 palbs.append(p.albedo_error)
                 pe, pa = f"{p.error:.1%}", f"{p.albedo_error:.1%}"
-            out(f"| {name} | {label} | {f.error:.1%} | {f.albedo_error:.1%} | {pe} | {pa} | {took:.2f} s |")
+            out(
+                f"| {name} | {label} | {f.error:.1%} | {f.albedo_error:.1%} | {pe} | {pa} | {floors[-1]:.1%} "
+                f"| {took:.2f} s |"
+            )
             sys.stdout.flush()
     e, a = np.array(errs), np.array(albs)
     out("")
@@ -73,6 +79,11 @@ def bench_nodes(names, principled=True, out=print):
         f"Lobes over {len(e)} tables: BRDF error median {np.median(e):.1%}, 90th percentile "
         f"{np.percentile(e, 90):.1%}, worst {e.max():.1%}; albedo error median {np.median(a):.1%}, worst "
         f"{a.max():.1%}; fit time median {np.median(times):.2f} s, worst {max(times):.2f} s."
+    )
+    fl = np.array(floors)
+    out(
+        f"Near-mirror floor (no setup of isotropic closures goes below it) over the same: median {np.median(fl):.1%}, worst "
+        f"{fl.max():.1%}; above 30 %: {int(np.sum(fl > 0.3))} tables, above 10 %: {int(np.sum(fl > 0.1))}."
     )
     if perrs:
         out(

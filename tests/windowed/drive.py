@@ -159,6 +159,26 @@ def snapshot():
         "preview_material": s.preview_material,
         "scenes": sorted(sc.name for sc in bpy.data.scenes),
         "window_scene": window().scene.name,
+        "artist": artist_material(mat),
+    }
+
+
+def artist_material(mat):
+    """What Apply put into the artist's own material (issue 28): the installed approximation,
+    its label, the group's node types, whether it feeds the output, and the lookup's packing."""
+    s = mat.brdf_moments
+    node = mat.node_tree.nodes.get("BRDF Moments edit") if mat.node_tree else None
+    nodes = list(node.node_tree.nodes) if node is not None and node.node_tree else []
+    lookup = bpy.data.images.get(f"BRDFM lookup: {mat.name}")
+    return {
+        "used": s.artist_shader_used,
+        "choice": s.artist_shader,
+        "label": node.label if node is not None else "",
+        "group": sorted(n.bl_idname for n in nodes),
+        "linked": bool(node is not None and node.outputs[0].is_linked),
+        "lobes": json.loads(s.lobes_data) if s.lobes_data else None,
+        "principled": json.loads(s.principled_data) if s.principled_data else None,
+        "lookup_packed": bool(lookup is not None and lookup.packed_file is not None),
     }
 
 
@@ -621,6 +641,27 @@ def session():
             resumed = True
             break
     record("apply_cancelled_live", status=status, job=last_job(), preview=before is not None, live_resumed=resumed)
+
+    # The artist's material without OSL (issue 28): the panel's menu set to the fitted lobes,
+    # Apply, the material rendered in the window's 3D view with EEVEE, then Restore.
+    s.artist_shader = "LOBES"
+    redraw()
+    yield 0.3
+    yield from panel_shot("lobes-chosen")
+    status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
+    yield from wait_jobs()
+    space = area("VIEW_3D").spaces.active
+    shading = space.shading.type
+    space.shading.type = "RENDERED"
+    redraw()
+    yield 3.0
+    record("apply_lobes", status=status, message=message, job=last_job(), shot=screenshot("lobes-rendered"))
+    yield from panel_shot("lobes-applied")
+    space.shading.type = shading
+    status, message = run_op(bpy.ops.brdf_moments.restore_material, material=MAT)
+    yield 0.3
+    record("restore_lobes", status=status, message=message)
+    s.artist_shader = "AUTO"
 
 
 # --- the timers -------------------------------------------------------------------------------
