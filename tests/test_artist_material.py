@@ -444,3 +444,17 @@ def test_the_glossy_node_renders_the_lobe_the_fit_models(fresh):
     )
     assert corr - sep > 0.005
     assert abs(rendered - corr) < 0.3 * (corr - sep), (rendered, corr, sep)
+
+
+def test_stretched_lobes_render_as_the_fit_models_them(fresh, tmp_path):
+    """One GGX lobe stretched across the plane of incidence, built as the lobes group builds it:
+    Cycles renders the lobe the fit models, not the round one nor one stretched in the plane
+    (``tests/_stretched.py``; the same check runs in Debian's 3.4, test_preview_debian.py)."""
+    import sys
+
+    from _stretched import render_errors
+
+    material = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.material"]
+    err = render_errors(fresh, material, str(tmp_path / "stretched.exr"))
+    # measured 3.3 % at these sample counts (render and reference noise), 112 % round, 318 % in the plane
+    assert err["model"] < 0.06 and err["round"] > 10 * err["model"] and err["in the plane"] > 10 * err["model"], err

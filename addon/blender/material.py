@@ -107,6 +107,21 @@ def _glossy_node(group, anisotropic=False):
     return node
 
 
+def _math(group, op, location, a, b=None):
+    """A Math node ``op`` on ``a`` and ``b`` (each a socket to link or a number)."""
+    m = group.nodes.new("ShaderNodeMath")
+    m.operation = op
+    m.location = location
+    for sock, v in zip(m.inputs, (a, b)):
+        if v is None:
+            continue
+        if isinstance(v, (int, float)):
+            sock.default_value = float(v)
+        else:
+            group.links.new(v, sock)
+    return m
+
+
 def _across_plane_of_incidence(group):
     """N x I, normalised: the tangent across the plane of incidence. Zero at normal
     view, where the fit keeps every lobe round (anisotropy 0 makes Cycles ignore the tangent)."""
@@ -129,9 +144,9 @@ def fill_lobes(group, fit, image):
     Layer Weight's facing ratio (1 - |N.I|), one Image Texture per row of the lookup ``image``
     (row r read at v = (r + 1/2) / rows: texel centres, so linear filtering never mixes rows),
     its colour driving a Diffuse BSDF (row 0) or a GGX Glossy BSDF (row k), all added. A
-    stretched lobe reads its aspect q from row K + k; Cycles' anisotropy 1 / sqrt(q) - 1 with the
-    tangent across the plane of incidence gives alpha sqrt(q) across it and alpha / sqrt(q) in it
-    (Cycles' mapping for negative anisotropy, the same in 3.x and 4.x)."""
+    stretched lobe reads its aspect q from row K + k; with the tangent across the plane of
+    incidence, Cycles' anisotropy 1 / sqrt(q) - 1 (q > 1) or 1 - sqrt(q) (q < 1) gives alpha sqrt(q)
+    across it and alpha / sqrt(q) in it (Cycles' mapping, the same in 3.x and 4.x)."""
     group.nodes.clear()
     out = group.nodes.new("NodeGroupOutput")
     out.location = (1000, 0)
@@ -185,16 +200,12 @@ def fill_lobes(group, fit, image):
                 q = group.nodes.new("ShaderNodeSeparateXYZ")  # the aspect, grey in the image
                 q.location = (150, y - 150)
                 group.links.new(read_row(fit.n_lobes + r, y - 150), q.inputs[0])
-                inv = group.nodes.new("ShaderNodeMath")
-                inv.operation = "POWER"
-                inv.location = (300, y - 150)
-                group.links.new(q.outputs["X"], inv.inputs[0])
-                inv.inputs[1].default_value = -0.5
-                aniso = group.nodes.new("ShaderNodeMath")
-                aniso.operation = "SUBTRACT"
-                aniso.location = (450, y - 150)
-                group.links.new(inv.outputs[0], aniso.inputs[0])
-                aniso.inputs[1].default_value = 1.0
+                # anisotropy (1 - sqrt q) / max(sqrt q, 1): 1 / sqrt(q) - 1 when stretched across
+                # (q > 1), 1 - sqrt(q) when stretched in the plane (q < 1)
+                root = _math(group, "SQRT", (300, y - 150), q.outputs["X"])
+                less = _math(group, "SUBTRACT", (450, y - 100), 1.0, root.outputs[0])
+                most = _math(group, "MAXIMUM", (450, y - 200), root.outputs[0], 1.0)
+                aniso = _math(group, "DIVIDE", (600, y - 150), less.outputs[0], most.outputs[0])
                 group.links.new(aniso.outputs[0], bsdf.inputs["Anisotropy"])
                 group.links.new(tangent, bsdf.inputs["Tangent"])
         bsdf.location = (300, y)
@@ -293,9 +304,10 @@ def apply_lobes(mat, fit, storage="PACK"):
     pixels = np.ascontiguousarray(fit.lookup_pixels()[::-1])  # top row first, as image files are written
     _texture_file(mat, pixels, storage, LOOKUP_IMAGE, "brdfm-lookup")
     image = bpy.data.images[LOOKUP_IMAGE.format(mat.name)]
+    # Blender keeps 63 bytes of a label: the error first, the albedo after it
+    stretched = "stretched " if fit.anisotropic else ""
     label = (
-        f"BRDF Moments edit ({fit.n_lobes} GGX lobes{' (stretched)' if fit.anisotropic else ''} + diffuse, "
-        f"approx., error {100 * fit.error:.1f} %, "
+        f"BRDF Moments edit: {fit.n_lobes} {stretched}GGX lobes approx. (error {100 * fit.error:.1f} %, "
         f"albedo within {100 * fit.albedo_error:.1f} %)"
     )
     group = apply_group(mat, label)

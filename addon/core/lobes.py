@@ -50,6 +50,7 @@ ALBEDO_WEIGHT = 30.0  # the albedo equation's weight against the BRDF residual's
 # alpha²). A lobe round about the mirror direction, as measured highlights often are, is
 # stretched across the plane by about 1 / cos theta_o in half vectors.
 ASPECTS = (1.0, 1.3, 1.7, 2.2, 3.0, 4.0)
+ASPECT_RANGE = (1.0, 10.0)  # stretched across the plane only (what the dictionary holds)
 SHADOWING = ("correlated", "separable")
 
 
@@ -96,7 +97,8 @@ class LobeFit:
         if w.ndim != 3 or w.shape[0] != len(r) + 1 or w.shape[2] != 3 or not np.all(np.isfinite(w)):
             raise ValueError("lobe weights of the wrong shape")
         q = np.asarray(d.get("aspect", np.ones((len(r), w.shape[1]))), float)
-        if q.shape != (len(r), w.shape[1]) or not np.all(np.isfinite(q)) or np.any(q < 1.0) or np.any(q > 10.0):
+        lo, hi = ASPECT_RANGE
+        if q.shape != (len(r), w.shape[1]) or not np.all(np.isfinite(q)) or np.any(q < lo) or np.any(q > hi):
             raise ValueError("lobe aspects of the wrong shape or range")
         return cls(r, w, str(d["shadowing"]), float(d["error"]), float(d["albedo_error"]), q)
 
@@ -196,9 +198,10 @@ def lobes_brdf(fit: LobeFit, wi, wo):
 def _features(rough, wi, wo, shadowing, aspects=(1.0,)):
     """Diffuse, then every (roughness, aspect) pair, aspects varying fastest."""
     wo_b = np.broadcast_to(wo, wi.shape)
-    rows = [np.full(len(wi), 1.0 / np.pi)]
-    rows += [ggx_lobe(r * r, wi, wo_b, shadowing, q) for r in rough for q in aspects]
-    return np.stack(rows)
+    q = np.asarray(aspects, float)[:, None]  # all the aspects of one roughness in one call
+    rows = [np.full((1, len(wi)), 1.0 / np.pi)]
+    rows += [np.broadcast_to(ggx_lobe(r * r, wi, wo_b, shadowing, q), (len(q), len(wi))) for r in rough]
+    return np.concatenate(rows)
 
 
 def _nnls_gram(G, b):
@@ -294,15 +297,16 @@ def _greedy(vs, n_lobes, n_dict, shares):
     return sorted(chosen)
 
 
-def _choose_aspects(vs, n_lobes, n_aspects, shares, round_views=(0,), passes=2):
+def _choose_aspects(vs, n_lobes, n_aspects, shares, round_index=0, round_views=(0,), passes=2):
     """Each lobe's aspect per view (indices (K, V)) for views ``vs`` whose columns are the
     lobes' aspects (lobe k, aspect a at 1 + k n_aspects + a): coordinate descent from round
     lobes, each lobe in turn taking per view the aspect that costs least with the others fixed.
-    Views in ``round_views`` keep aspect 1."""
+    Views in ``round_views`` keep aspect 1 (index ``round_index``)."""
     costs, V = _cost_fn(vs), len(vs)
-    pick = np.zeros((n_lobes, V), int)
+    pick = np.full((n_lobes, V), round_index)
     allowed = np.ones((n_aspects, V), bool)
-    allowed[1:, list(round_views)] = False
+    allowed[:, list(round_views)] = False
+    allowed[round_index, list(round_views)] = True
     for _ in range(passes):
         for k in range(n_lobes):
             table = np.full((n_aspects, V), np.inf)
@@ -329,8 +333,8 @@ def fit_lobes(
     if shadowing not in SHADOWING:
         raise ValueError(f"unknown shadowing {shadowing!r}")
     dictionary, aspects = tuple(dictionary), tuple(float(q) for q in aspects)
-    if not aspects or aspects[0] != 1.0 or any(not 1.0 <= q <= 10.0 for q in aspects):
-        raise ValueError("aspects must start at 1 and lie in [1, 10]")
+    if 1.0 not in aspects or any(not ASPECT_RANGE[0] <= q <= ASPECT_RANGE[1] for q in aspects):
+        raise ValueError(f"aspects must hold 1 and lie in {ASPECT_RANGE}")
     views = texel_views_deg(n_views)
     vs = [
         _View(table, deg, wi, wo, w, shadowing, dictionary)
@@ -343,10 +347,10 @@ def fit_lobes(
     nq = len(aspects)
     if nq > 1:
         vs = [v.with_lobes(rough, aspects) for v in vs]
-        qi = _choose_aspects(vs, len(rough), nq, [v.share for v in vs])
+        qi = _choose_aspects(vs, len(rough), nq, [v.share for v in vs], aspects.index(1.0))
     else:
         vs = [v.with_lobes(rough, aspects) for v in vs]
-        qi = np.zeros((len(rough), len(vs)), int)
+        qi = np.full((len(rough), len(vs)), aspects.index(1.0))
     W = np.zeros((1 + len(rough), n_views, 3))
     for j, v in enumerate(vs):
         idx = [0] + [1 + n * nq + int(qi[n, j]) for n in range(len(rough))]

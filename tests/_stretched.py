@@ -1,0 +1,77 @@
+"""The check that Cycles renders a stretched lobe of ``core.lobes`` as the fit models it: one GGX
+lobe (roughness 0.3, white) stretched across the plane of incidence (aspect 3 past the first
+texel), put into a material by the add-on's ``apply_lobes``, on a sphere under Blender's studio
+HDRI, against a converged numpy render of the model itself (``lobes_brdf``: a MERL table cannot
+hold it, its axes follow the view and a table is reciprocal), of the same lobe stretched in the
+plane, and of the round lobe. Run by the bpy-module tests and, in Debian's 3.4, by
+tests/blender/stretched.py."""
+
+import numpy as np
+
+ROUGHNESS, ASPECT, SIZE, SAMPLES = 0.3, 3.0, 64, 1024
+
+
+def render_errors(bpy, material, exr_path):
+    """Per-pixel relative RMSE of the render against the three references."""
+    from addon.blender.preview import render_still
+    from addon.blender.preview import scene as sc
+    from addon.core import lobes as L
+    from addon.core.merl import tabulate
+    from addon.core.profiles import compute_profiles
+    from addon.core.render import TableBRDF, bake_sphere, relative_rmse, sphere_layout
+    from addon.tools.bench_preview import _environment, _read_exr
+
+    n = L.N_VIEWS
+    w = np.zeros((2, n, 3))
+    w[1] = 1.0
+    q = np.full((1, n), ASPECT)
+    q[0, 0] = 1.0  # round at normal view, as every fit
+    shadowing = L.shadowing_for(bpy.app.version)
+    fit = L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0, q)
+
+    class Model(TableBRDF):
+        """The model evaluated exactly; its own table only guides the sampling."""
+
+        def __init__(self, f):
+            self.f = f
+            t = tabulate(lambda wi, wo: L.lobes_brdf(f, wi.reshape(-1, 3), wo.reshape(-1, 3)))
+            super().__init__(t, compute_profiles(t, max_order=2))
+
+        def evaluate(self, theta, phi, theta_o):
+            th, ph, to = np.broadcast_arrays(*(np.asarray(v, float) for v in (theta, phi, theta_o)))
+            # the light's direction in the view's frame, as merl.cell_indices_view reads (theta, phi)
+            wi = np.stack([np.sin(th) * np.cos(ph), np.sin(ph), np.cos(th) * np.cos(ph)], -1).reshape(-1, 3)
+            wo = np.stack([np.sin(to), np.zeros_like(to), np.cos(to)], -1).reshape(-1, 3)
+            v = np.where(wi[:, 2:3] > 0.0, L.lobes_brdf(self.f, wi, wo).T, 0.0)
+            return v.reshape(th.shape + (3,))
+
+    env, env_path = _environment(bpy)
+    layout = sphere_layout(SIZE, SIZE, 1)
+    mask = layout.interior_mask()
+    refs = {}
+    for name, f in (
+        ("model", fit),
+        ("in the plane", L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0, 1.0 / q)),
+        ("round", L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0)),
+    ):
+        rgb, cov = bake_sphere(Model(f), env, layout.diameter, SAMPLES, 3)
+        refs[name] = layout.compose([np.dstack([rgb * cov[..., None], cov])])
+    bpy.ops.wm.read_homefile(use_empty=True)
+    scene = bpy.context.scene
+    sc.configure_render(scene, layout, "baked", samples=SAMPLES)
+    scene.cycles.max_bounces = scene.cycles.diffuse_bounces = scene.cycles.glossy_bounces = 1
+    sc.ensure_camera(scene, layout)
+    sc.ensure_world(scene, env_path, path="osl")
+    (obj,) = sc.ensure_spheres(scene, layout)
+    mat = bpy.data.materials.new("stretched")
+    material.apply_lobes(mat, fit)
+    group = mat.node_tree.nodes["BRDF Moments edit"]
+    if "stretched GGX lobes" not in group.label or "ShaderNodeNewGeometry" not in [
+        nd.bl_idname for nd in group.node_tree.nodes
+    ]:
+        raise AssertionError(f"not a stretched lobes group: {group.label}")
+    obj.data.materials.clear()
+    obj.data.materials.append(mat)
+    render_still(scene, exr_path, quiet=True)
+    img = _read_exr(bpy, exr_path)
+    return {k: relative_rmse(img, v, mask) for k, v in refs.items()}
