@@ -74,9 +74,11 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         scale = state.scale_to_one
         floor = state.floor
         shader = resolve_artist_shader(context, state.artist_shader)
-        from ..addon.core.lobes import shadowing_for
+        from ..addon.core.lobes import ASPECTS, shadowing_for
 
         shadowing = shadowing_for(bpy.app.version)  # the Smith term this Blender's Cycles uses
+        # EEVEE draws every lobe round (it ignores anisotropy): for a scene it renders, round lobes
+        aspects = (1.0,) if context.scene.render.engine.startswith("BLENDER_EEVEE") else ASPECTS
         # Content-addressed output: the same file and sliders give the same name, and an
         # edit never overwrites another material's table (or the input).
         st = os.stat(source)
@@ -138,7 +140,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             if shader in ("lobes", "approx"):
                 from ..addon.core.lobes import fit_lobes
 
-                principled = fit_lobes(res.table, shadowing=shadowing)
+                principled = fit_lobes(res.table, shadowing=shadowing, aspects=aspects)
             if shader in ("principled", "approx"):
                 from ..addon.core.principled import fit_principled
 

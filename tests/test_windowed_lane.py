@@ -279,8 +279,6 @@ def test_the_artists_material_without_osl(lane):
     fit = LobeFit.from_dict(art["lobes"])
     glossy = [k for k in art["group"] if k in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic")]
     assert len(glossy) == fit.n_lobes
-    if fit.anisotropic:  # stretched lobes: 3.4's Anisotropic node, its aspect read from the lookup
-        assert glossy == ["ShaderNodeBsdfAnisotropic"] * fit.n_lobes and "ShaderNodeNewGeometry" in art["group"]
     assert art["group"].count("ShaderNodeTexImage") == fit.lookup_pixels().shape[0]
     assert "ShaderNodeBsdfDiffuse" in art["group"] and "ShaderNodeLayerWeight" in art["group"]
     assert fit.shadowing == "separable"  # what 3.4's Cycles renders
@@ -289,7 +287,10 @@ def test_the_artists_material_without_osl(lane):
     assert err == pytest.approx(fit.error, rel=1e-3) and alb == pytest.approx(fit.albedo_error, rel=1e-3, abs=1e-4)
     assert f"{100 * fit.error:.1f} %" in art["label"]
     # The window's fit is the engine's for that table (not a stale one).
-    again = fit_lobes(table, shadowing="separable")
+    # The window's scene renders with EEVEE (3.4's default), which draws every lobe round: the
+    # lobes were fitted round; the fit is the engine's for that table (not a stale one).
+    assert art["engine"] == "BLENDER_EEVEE" and not fit.anisotropic
+    again = fit_lobes(table, shadowing="separable", aspects=(1.0,))
     assert again.roughness == pytest.approx(fit.roughness) and again.error == pytest.approx(fit.error, rel=1e-3)
     assert os.path.isfile(lobes_step["shot"])
     back = st["restore_lobes"]

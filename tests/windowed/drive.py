@@ -179,6 +179,7 @@ def artist_material(mat):
         "lobes": json.loads(s.lobes_data) if s.lobes_data else None,
         "principled": json.loads(s.principled_data) if s.principled_data else None,
         "lookup_packed": bool(lookup is not None and lookup.packed_file is not None),
+        "engine": bpy.context.scene.render.engine,
     }
 
 
