@@ -61,11 +61,13 @@ def test_edited_table_is_reciprocal_and_keeps_missing_cells(glossy, targets):
 @pytest.mark.parametrize(
     "targets",
     [
-        EditTargets(sigma2=1e-12),
+        # at the declared ranges' edges (core/limits.py; beyond them an edit is refused,
+        # tests/test_stress_edit.py): 1e-8 is clamped to MIN_SIGMA2, -2 to the slider's end
+        EditTargets(sigma2=1e-8),
         EditTargets(mu_slope=-1.0),
         EditTargets(mu_slope=0.0),
-        EditTargets(mu_slope=-3.0, sigma2=50.0),
-        EditTargets(mode="model", mu_slope=0.0, sigma2=1e-9),
+        EditTargets(mu_slope=-2.0, sigma2=math.pi**2 / 12),
+        EditTargets(mode="model", mu_slope=0.0, sigma2=1e-8),
     ],
 )
 def test_degenerate_sliders_give_finite_valid_tables(glossy, targets):

@@ -166,3 +166,36 @@ def test_apply_at_the_slider_limits_never_breaks_blender(fresh, tmp_path, stress
         "error" if outcome == "error" else "clamped",
         "model, mu 0, sigma2 at its minimum",
     )
+
+
+@pytest.mark.parametrize(
+    "prop, value, label",
+    [
+        ("grazing_boost", 1e30, "Grazing boost"),  # a float32 property: 1e308 would read inf
+        ("strength", -1.0, "Strength"),
+        ("sigma2", float("nan"), "Variance"),
+        ("mu_slope", 5.0, "Mean slope"),
+    ],
+)
+def test_apply_with_a_stored_slider_beyond_its_range_is_one_error_line(fresh, tmp_path, stress_log, prop, value, label):
+    """A slider value the property's limits never let a drag set, but a file from another
+    version or a script writing the stored value can hold: the engine refuses it (declared
+    ranges, core/limits.py), and Apply reports one ERROR line naming the slider and cancels."""
+    import samples
+
+    bpy = fresh
+    src = tmp_path / "glossy.binary"
+    shutil.copy(samples.sample_path("ggx_glossy"), src)
+    mat = bpy.data.materials.new("R")
+    assert bpy.ops.brdf_moments.load_merl(filepath=str(src), material="R") == {"FINISHED"}
+    state = mat.brdf_moments
+    state[prop] = value  # the stored value itself: the RNA min/max clamp only what is set through them
+    held = getattr(state, prop)
+    assert held == pytest.approx(value, rel=1e-6) or (math.isnan(value) and math.isnan(held)), (prop, held)
+    with pytest.raises(RuntimeError) as err:
+        bpy.ops.brdf_moments.apply_edit(material="R")
+    msg = str(err.value).strip()
+    assert "Traceback" not in msg and len(msg.splitlines()) == 1, msg
+    assert label in msg and ("at most" in msg or "at least" in msg or "finite" in msg), msg
+    assert state.edited_path == "" and not mat.get("brdfm_kind")  # nothing applied
+    stress_log.record("Blender: Apply at the slider limits", "error", f"stored {prop}={value!r}")

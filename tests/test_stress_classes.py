@@ -257,6 +257,103 @@ def test_the_engine_entry_points_check_the_same_ranges(sample_table, stress_log)
         stress_log.record(RANGES_CAT, "error", f"engine: {str(err.value)[:60]}")
 
 
+def _render_calls():
+    """(public render function with one numeric parameter set, the parameter's name): the
+    preview engine's sizes, sample counts, seeds and shares (core/render)."""
+    from addon.core.render import (
+        BakeCache,
+        Environment,
+        ModelBRDF,
+        MomentParams,
+        bake_sphere,
+        reference_sphere,
+        render_baked,
+        render_reference,
+        sphere_layout,
+    )
+
+    third = (0.1, 0.1, 0.1)
+    params = MomentParams(third, (0.2, 0.2, 0.2), (0.0, 0.0, 0.0), 0.785, 1.31, -0.5, 0.05)
+    brdf, env, lay = ModelBRDF(params), Environment.constant((1.0, 1.0, 1.0)), sphere_layout(16, 16, 1)
+    return [
+        (lambda v: bake_sphere(brdf, env, v), "diameter"),
+        (lambda v: bake_sphere(brdf, env, 8, lobe_samples=v), "lobe_samples"),
+        (lambda v: bake_sphere(brdf, env, 8, 4, light_samples=v), "light_samples"),
+        (lambda v: bake_sphere(brdf, env, 8, 4, seed=v), "seed"),
+        (lambda v: bake_sphere(brdf, env, 8, 4, cosine_share=v), "cosine_share"),
+        (lambda v: reference_sphere(brdf, env, v), "diameter"),
+        (lambda v: reference_sphere(brdf, env, 8, spp=v), "spp"),
+        (lambda v: reference_sphere(brdf, env, 8, 4, diffuse_grid=v), "diffuse_grid"),
+        (lambda v: reference_sphere(brdf, env, 8, 4, shares=(0.5, v, 0.5)), "shares"),
+        (lambda v: render_reference(lay, [brdf], env, spp=v), "spp"),
+        (lambda v: render_reference(lay, [brdf], env, 4, seed=v), "seed"),
+        (lambda v: render_baked(lay, [brdf], env, lobe_samples=v), "lobe_samples"),
+        (lambda v: sphere_layout(v), "width"),
+        (lambda v: sphere_layout(64, v), "height"),
+        (lambda v: sphere_layout(64, 64, v), "count"),
+        (lambda v: sphere_layout(64, 64, 1, v), "fill"),
+        (lambda v: BakeCache().get(brdf, env, v), "diameter"),
+        (lambda v: BakeCache().get(brdf, env, 8, v), "lobe_samples"),
+        (lambda v: Environment.constant((1.0, 1.0, 1.0), width=v), "width"),
+        (lambda v: Environment.from_function(lambda d: d * 0 + 1, 8, v), "height"),
+        (lambda v: env.irradiance_map(v), "diameter"),
+        (lambda v: params.edited(strength=v), "strength"),
+        (lambda v: params.edited(sigma2=v), "sigma2"),
+    ]
+
+
+# huge, negative, NaN, inf, not a whole number, a number given as text
+HOSTILE = (10**12, 1e308, -1, -1e308, float("nan"), float("inf"), 2.5, "8")
+
+
+def test_the_render_engine_refuses_numbers_outside_their_declared_ranges(stress_log):
+    """bake_sphere, reference_sphere, render_reference/render_baked, sphere_layout, the bake
+    cache, the environment's constructors and the model's sliders took any number: a size of
+    10^12 tried to allocate it, NaN and 2.5 went through int(). Each refuses it now, one line
+    naming the parameter (limits.RANGES), before any work."""
+    for call, name in _render_calls():
+        for value in HOSTILE:
+            if name in ("fill", "cosine_share", "shares", "strength", "sigma2") and value == 2.5:
+                value = 17.0  # a share, a fill and the sliders may be fractions: 17 is outside
+            if name == "seed" and value == 10**12:
+                value = 2**64  # any seed numpy takes is in, up to 2^63 - 1
+            with pytest.raises(ValueError) as err:
+                call(value)
+            msg = str(err.value)
+            assert len(msg.splitlines()) == 1 and msg.startswith(name + ":"), (name, value, msg)
+        stress_log.record(RANGES_CAT, "error", f"render engine: {name} huge, negative, NaN, inf, 2.5, text")
+    # the edges are in (each call returns)
+    from addon.core.render import Environment, sphere_layout
+
+    assert sphere_layout(8, 8, 1, 1.0).diameter == 8
+    assert Environment.constant((1, 1, 1), 4, 2).pixels.shape[:2] == (2, 4)
+
+
+def test_the_edit_engine_refuses_numbers_outside_their_declared_ranges(sample_table, stress_log):
+    """The edit's other public numbers: the albedo's view stride, scale_to_albedo's limit, the
+    reachable region's grid."""
+    from addon.core.edit import directional_albedo, reachable_region, scale_to_albedo
+    from addon.core.fits import fit_material
+    from addon.core.integrate import default_views
+    from addon.core.profiles import compute_profiles
+
+    table = sample_table("ggx_glossy")
+    prof = compute_profiles(table, default_views(4, 80.0))
+    fit = fit_material(prof)
+    for call, name in (
+        (lambda v: directional_albedo(table, prof.theta_o, v), "stride"),
+        (lambda v: scale_to_albedo(None, v), "limit"),
+        (lambda v: reachable_region(prof, fit, n_mu=v), "n_mu"),
+        (lambda v: reachable_region(prof, fit, n_sigma=v), "n_sigma"),
+    ):
+        for value in (10**12, 1e308, -1, float("nan"), float("inf"), 0, "3"):
+            with pytest.raises(ValueError) as err:
+                call(value)
+            msg = str(err.value)
+            assert len(msg.splitlines()) == 1 and msg.startswith(name + ":"), (name, value, msg)
+        stress_log.record(RANGES_CAT, "error", f"edit engine: {name} huge, negative, NaN, inf, 0, text")
+
+
 @pytest.mark.blender
 def test_the_sliders_are_held_inside_their_declared_ranges(blender, stress_log):
     """Blender clamps a property to min/max: the declared ranges are the sliders' hard limits."""

@@ -7,6 +7,8 @@ user needs and well below what would exhaust this machine (2 cores, a few GB).
 
 from __future__ import annotations
 
+import numbers
+
 # --- analysis -------------------------------------------------------------------------------
 MAX_ELEVATIONS = 360  # view elevations (0.25 deg steps); the slice operator grows ~4 MB per view
 MAX_ORDER = 4  # highest moment order (the paper's)
@@ -18,6 +20,9 @@ MAX_RENDER_SIZE = 4096  # render --size, Build Preview sphere size, in pixels
 MAX_SAMPLES = 4096  # Cycles samples per pixel
 MAX_LOBE_SAMPLES = 1024  # OSL directions per shading point
 MAX_BAKE_SAMPLES = 4096  # baked-path directions per texel
+MAX_REFERENCE_SAMPLES = 1 << 16  # the converged reference's samples per pixel (benchmarks: 16384)
+MAX_SPHERES = 64  # spheres in one preview row
+MAX_SEED = 2**63 - 1  # a random seed (numpy takes any non-negative integer; this bounds its key)
 
 # --- input files ----------------------------------------------------------------------------
 MAX_IMAGE_SIDE = 16384  # width or height of an environment map
@@ -43,19 +48,6 @@ TABLE_TEXTURE_MAX_ENTRIES = 16  # OSL table textures (~17 MB each)
 TABLE_TEXTURE_MAX_BYTES = 400 << 20
 EDITS_CACHE_MAX_ENTRIES = 16  # re-synthesized tables from Apply (35 MB each)
 EDITS_CACHE_MAX_BYTES = 600 << 20
-
-
-def check_int(value, name, low, high):
-    """``value`` as an int in [low, high]; ValueError naming the parameter otherwise."""
-    try:
-        v = int(value)
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"{name}: not a whole number: {value!r}") from None
-    if isinstance(value, float) and v != value:
-        raise ValueError(f"{name}: not a whole number: {value!r}")
-    if not low <= v <= high:
-        raise ValueError(f"{name}: must be between {low} and {high}, got {v}")
-    return v
 
 
 # --- every numeric input: a declared finite range --------------------------------------------
@@ -89,6 +81,13 @@ class Range:
         label = label or self.flag
         if isinstance(value, bool) or not isinstance(value, (int, float)) and not hasattr(value, "__float__"):
             raise ValueError(f"{label}: not a number: {value!r}")
+        if isinstance(value, numbers.Integral):  # exact: a float would round a huge int
+            v = int(value)
+            if not self.low <= v <= self.high:
+                side = f"at least {self.low:g}" if v < self.low else f"at most {self.high:g}"
+                shown = f"{v:.3g}" if abs(v) > 10**15 else str(v)
+                raise ValueError(f"{label}: must be {side} ({self.describe()}), got {shown}")
+            return v if self.integer else float(v)
         try:
             v = float(value)
         except (TypeError, ValueError, OverflowError):
@@ -134,6 +133,9 @@ RANGES = {
         Range("mu_slope", *MU_SLOPE_RANGE, flag="--mu"),
         Range("sigma2", *SIGMA2_RANGE),
         Range("correlation_a", -MAX_CORRELATION_A, MAX_CORRELATION_A),
+        # the edit engine's other numbers (core/edit), named as in its functions
+        Range("albedo_limit", 1e-6, MAX_ENERGY_SCALE, flag="limit"),  # scale_to_albedo's target
+        Range("region_grid", 2, 1001, integer=True, flag="n_mu"),  # reachable_region's grid
         # analysis
         Range("elevations", 1, MAX_ELEVATIONS, integer=True),
         Range("max_elevation", 0.0, 89.99),  # [0, 90): the view at 90 deg sees nothing
@@ -144,6 +146,17 @@ RANGES = {
         Range("samples", 1, MAX_SAMPLES, integer=True),
         Range("lobe_samples", 1, MAX_LOBE_SAMPLES, integer=True),
         Range("bake_samples", 1, MAX_BAKE_SAMPLES, integer=True),
+        # the render engine's own parameters (core/render), named as in its functions
+        Range("diameter", 2, MAX_RENDER_SIZE, integer=True, flag="diameter"),
+        Range("light_samples", 0, MAX_BAKE_SAMPLES, integer=True, flag="light_samples"),
+        Range("spp", 0, MAX_REFERENCE_SAMPLES, integer=True, flag="spp"),
+        Range("diffuse_grid", 1, 64, integer=True, flag="diffuse_grid"),
+        Range("seed", 0, MAX_SEED, integer=True, flag="seed"),
+        Range("share", 0.0, 1.0, flag="share"),  # a sampling strategy's share of the samples
+        Range("image_side", 1, MAX_IMAGE_SIDE, integer=True, flag="width"),  # of an image or a map
+        Range("spheres", 1, MAX_SPHERES, integer=True, flag="count"),
+        Range("fill", 0.1, 1.0, flag="fill"),  # a sphere's share of its cell
+        Range("light_clusters", 1, 4096, integer=True, flag="count"),
     )
 }
 
@@ -151,6 +164,22 @@ RANGES = {
 def check(name, value, label=None):
     """``value`` checked against the declared range of input ``name`` (see RANGES)."""
     return RANGES[name].check(value, label)
+
+
+def check_int(value, name, low, high):
+    """``value`` as an int in [low, high]; ValueError naming ``name`` otherwise (the same
+    checks and one-line messages as a declared range: not a number, not whole, outside)."""
+    return Range(name, low, high, integer=True).check(value, label=name)
+
+
+def check_float(value, name, low, high):
+    """``value`` as a finite float in [low, high]; ValueError naming ``name`` otherwise."""
+    return Range(name, low, high).check(value, label=name)
+
+
+# The engine's names for the edit's sliders (core.edit.EditTargets' fields): its errors name
+# the parameter a caller passed, where the command line names its flag and the panel its slider.
+TARGET_FIELDS = {n: n for n in ("strength", "colour", "grazing_boost", "mu_slope", "sigma2", "correlation_a")}
 
 
 def check_targets(targets, labels=None):

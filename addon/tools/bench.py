@@ -794,7 +794,9 @@ def bench_rule(quick):
                     continue
                 b = ps[j]
                 (pa, fa), (pb, fb) = measured[fam, a], measured[fam, b]
-                vt = view_targets(pa, fa, EditTargets(sigma2=fb["sigma2"]), fa["mu_slope"], fb["sigma2"])
+                # the point is passed as (mu, s2): the sliders only carry the energy (untouched),
+                # so a fitted sigma~^2 above pi^2/12 (outside the slider's range) is not refused
+                vt = view_targets(pa, fa, EditTargets(), fa["mu_slope"], fb["sigma2"])
                 theta = np.asarray(pa.theta_o, float)
                 use = counted_views(theta, g(pa, "alpha"))[:, 0] & counted_views(theta, g(pb, "alpha"))[:, 0]
                 var_b = 0.5 * (g(pb, "sigma_tt") + g(pb, "sigma_pp"))

@@ -1,7 +1,8 @@
 """Moment editing (SPEC §3 "Editing"): re-synthesize a tabulated BRDF from slider targets.
 
 Modules, in the order an edit runs through them:
-- ``targets``: the sliders, clamped, and the per-view targets they promise (``view_targets``).
+- ``targets``: the sliders (refused outside their declared ranges, ``core.limits``; clamped inside
+  them to what the material can show) and the per-view targets they promise (``view_targets``).
 - ``reach``: what a reciprocal table of this material can show (per view, and the region of the
   (mu~, sigma~^2) plane); a request outside the region is clamped to its nearest point.
 - ``reciprocal``: the synthesis, a transform of the specular table in (theta_h, theta_d, phi_d)

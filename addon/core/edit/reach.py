@@ -167,7 +167,13 @@ class ReachableRegion:
 
 def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableRegion:
     """The region for one material's profiles and fit (warp or model targets)."""
-    from .targets import EditTargets, follow_lobe, model_lobe, profile_lobes, view_targets
+    from ..limits import RANGES
+    from .targets import MODES, EditTargets, follow_lobe, model_lobe, profile_lobes, view_targets
+
+    n_sigma = RANGES["region_grid"].check(n_sigma, "n_sigma")
+    n_mu = RANGES["region_grid"].check(n_mu, "n_mu")
+    if mode not in MODES:
+        raise ValueError(f"mode: must be one of {MODES}, got {mode!r}")
 
     theta = np.asarray(prof.theta_o, float)
     s0, m0 = float(fit["sigma2"]), float(fit["mu_slope"])

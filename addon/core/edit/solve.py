@@ -194,11 +194,13 @@ def directional_albedo(table: MerlTable, views=None, stride: int = 1) -> np.ndar
     An edit measures it at its analysed views, with the same operator as its profiles: a second
     set of views cost a second operator (28 s cold)."""
     from ..integrate import default_views
+    from ..limits import MAX_ELEVATIONS, check_int
 
+    stride = check_int(stride, "stride", 1, MAX_ELEVATIONS)
     views = default_views() if views is None else np.asarray(views, float)
     op = get_operator(views)
     full = np.where(table.valid, table.rho, 0.0).T
-    ks = sorted(set(range(0, len(views), max(int(stride), 1))) | {len(views) - 1})
+    ks = sorted(set(range(0, len(views), stride)) | {len(views) - 1})
     out = np.empty((len(ks), 3))
     for i, k in enumerate(ks):
         cells, w = op.albedo_view(k)
@@ -428,6 +430,10 @@ def edit(
 def scale_to_albedo(result: EditResult, limit: float = 1.0) -> EditResult:
     """Scale the edited table down so its largest directional albedo is ``limit`` (kd too)."""
     import dataclasses
+
+    from ..limits import RANGES
+
+    limit = RANGES["albedo_limit"].check(limit, "limit")
 
     peak = float(result.max_albedo.max())
     if peak <= limit:

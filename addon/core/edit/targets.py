@@ -13,6 +13,7 @@ import numpy as np
 
 from .. import truncated
 from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, correlation_curve, energy_curve, fit_mean_slope, fit_variance
+from ..limits import TARGET_FIELDS, check_targets
 from ..profiles import Profiles
 
 MODES = ("warp", "model")
@@ -54,12 +55,25 @@ class EditTargets:
         )
 
 
+def _check(t: EditTargets):
+    """The sliders inside their declared ranges (``core.limits``), else ValueError naming one."""
+    return check_targets(t, TARGET_FIELDS)
+
+
 def resolve_targets(t: EditTargets, fit: dict):
-    """Clamp slider values to their ranges; returns (mu, sigma2, warnings)."""
+    """The sliders as the edit will use them; returns (mu, sigma2, warnings).
+
+    A value outside its declared range (``core.limits.RANGES``: NaN, inf, negative energies,
+    1e308, a variance above pi^2/12) is refused, ValueError naming the parameter: the same
+    check the command line and the panel make. Inside it, a mean slope beyond the slider's
+    range for this material and a variance below MIN_SIGMA2 are clamped, with a warning."""
+    _check(t)
+    if t.mode not in MODES:
+        raise ValueError(f"mode: must be one of {MODES}, got {t.mode!r}")
     warnings = []
     mu = fit["mu_slope"] if t.mu_slope is None else float(t.mu_slope)
     if not np.isfinite(mu):
-        raise ValueError("mean slope must be finite")
+        raise ValueError("the material's fitted mean slope is not finite")
     # The slider's range is [-1, 0] widened to hold the fitted slope (SPEC: measured ones go below -1).
     lo, hi = min(-1.0, fit["mu_slope"]), max(0.0, fit["mu_slope"])
     if t.mu_slope is not None and not lo <= mu <= hi:
@@ -67,30 +81,26 @@ def resolve_targets(t: EditTargets, fit: dict):
         mu = float(np.clip(mu, lo, hi))
     if t.lock:
         if t.correlation_a is None:
-            raise ValueError("the correlation lock needs the quadratic's coefficient a (fit a set first)")
+            raise ValueError(
+                "correlation_a: the correlation lock needs the quadratic's coefficient a (fit a set first)"
+            )
         s2 = float(correlation_curve(mu, t.correlation_a))
     else:
         s2 = fit["sigma2"] if t.sigma2 is None else float(t.sigma2)
     if not np.isfinite(s2):
-        raise ValueError("variance must be finite")
+        raise ValueError("the material's fitted variance is not finite")
     # Only a requested variance is clamped: left alone (None), the measured one is kept as it is,
     # even past pi^2/12 (broad measured lobes fit up to ~1.0). Clamping it made an energy-only
     # edit of nielsen/greencloth promise a 22 % narrower lobe at every view.
     if (t.sigma2 is not None or t.lock) and (s2 < MIN_SIGMA2 or s2 > LAMBERT_VARIANCE):
         warnings.append(f"variance {s2:.3g} clamped to ({MIN_SIGMA2:g}, pi^2/12]")
         s2 = float(np.clip(s2, MIN_SIGMA2, LAMBERT_VARIANCE))
-    for name, v in (("strength", t.strength), ("grazing boost", t.grazing_boost)):
-        if not np.isfinite(v) or v < 0:
-            raise ValueError(f"{name} must be a finite number >= 0")
-    if len(t.colour) != 3 or not all(np.isfinite(c) and c >= 0 for c in t.colour):
-        raise ValueError("colour must be three finite numbers >= 0")
-    if t.mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}")
     return mu, s2, warnings
 
 
 def target_energy(prof: Profiles, fit: dict, t: EditTargets) -> np.ndarray:
     """(views, 3), warp mode: alpha'_c = strength colour_c (alpha_b,c + boost (alpha_c - alpha_b,c))."""
+    _check(t)
     out = np.empty((len(prof.theta_o), 3))
     for i, ch in enumerate(RGB):
         a = np.nan_to_num(np.asarray(prof[ch]["alpha"], float))
@@ -102,6 +112,7 @@ def target_energy(prof: Profiles, fit: dict, t: EditTargets) -> np.ndarray:
 
 def model_energy(prof: Profiles, fit: dict, t: EditTargets) -> np.ndarray:
     """(views, 3), model mode: the fitted energy spline per channel, scaled like warp mode's."""
+    _check(t)
     theta = np.asarray(prof.theta_o, float)
     out = np.zeros((len(theta), 3))
     for i, ch in enumerate(RGB):
@@ -241,6 +252,9 @@ def view_targets(prof: Profiles, fit: dict, t: EditTargets, mu: float, s2: float
     Warp: alpha' = s_c alpha (boost above alpha_b); mean and variances by ``follow_lobe`` with the
     sigma~^2 ratio and the mean-slope move; shape kept. Model: the fitted spline, and the model's
     lobe edited by the same rule (``model_lobe``) on both axes."""
+    _check(t)
+    if not (np.isfinite(mu) and np.isfinite(s2) and s2 > 0):
+        raise ValueError(f"mu, s2: the resolved point must be finite with s2 > 0, got ({mu!r}, {s2!r})")
     theta = np.asarray(prof.theta_o, float)
     if t.mode == "model":
         mean, var = model_lobe(theta, fit["mu_slope"], fit["sigma2"], mu, s2)

@@ -30,8 +30,13 @@ BAKE_VERSION = _code_version()
 
 
 def bake_key(brdf, env, diameter, lobe_samples, seed=0) -> str:
+    """The content key of a bake; its numbers checked as ``bake_sphere`` checks them (a cache
+    hit must not let through what a bake would refuse)."""
+    from ..limits import check
+
+    d, k = check("diameter", diameter), check("bake_samples", lobe_samples, "lobe_samples")
     h = hashlib.sha256(BAKE_VERSION.encode())
-    for part in (brdf.content_key(), env.content_key(), f"{int(diameter)}:{int(lobe_samples)}:{int(seed)}"):
+    for part in (brdf.content_key(), env.content_key(), f"{d}:{k}:{check('seed', seed)}"):
         h.update(part.encode())
         h.update(b"\0")
     return h.hexdigest()

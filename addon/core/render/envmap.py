@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from ..geometry import HALF_PI
+from ..limits import check
 
 NEGATIVE_SHARE = 1e-3  # of a map's light; filtered HDRIs hold slight negatives (Blender's courtyard: -1.6e-4)
 
@@ -67,11 +68,13 @@ class Environment:
     # --- construction helpers ---------------------------------------------------------
     @classmethod
     def constant(cls, rgb, width=64, height=32, name="constant"):
+        width, height = check("image_side", width, "width"), check("image_side", height, "height")
         return cls(np.broadcast_to(np.asarray(rgb, np.float32), (height, width, 3)), name)
 
     @classmethod
     def from_function(cls, fn, width=256, height=128, name="function"):
         """Texel values = fn(direction at the texel centre), fn: (n, 3) -> (n, 3)."""
+        width, height = check("image_side", width, "width"), check("image_side", height, "height")
         v = (np.arange(height) + 0.5) / height
         u = (np.arange(width) + 0.5) / width
         uu, vv = np.meshgrid(u, v)
@@ -246,7 +249,7 @@ class Environment:
 
         Material independent, so it is computed once per map and resolution (texel centres
         outside the disk use the nearest point on the rim)."""
-        d = int(diameter)
+        d = check("diameter", diameter)
         if d not in self._irr_maps:
             c = (np.arange(d) + 0.5) * (2.0 / d) - 1.0
             x, z = np.meshgrid(c, -c)

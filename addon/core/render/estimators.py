@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from ..limits import check
 from .lights import light_clusters
 from .scene import local_frames, sphere_points, texel_positions, touched_texels
 
@@ -64,12 +65,15 @@ def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None
     rest by the BRDF samples alone with prefiltered lookups (smooth, so nearly unbiased).
     Light samples pick among clusters of bright texels by what each cluster gives the texel
     (``lights.LightClusters``), not by power alone."""
-    d = int(diameter)
-    k = int(lobe_samples)
-    kb = k if light_samples is None else int(light_samples)
-    if d < 2 or k < 1:
-        raise ValueError("need a diameter of at least 2 pixels and at least one sample")
-    beta = (0.0 if brdf.kind == "model" else 0.15) if cosine_share is None else float(cosine_share)
+    d = check("diameter", diameter)
+    k = check("bake_samples", lobe_samples, "lobe_samples")
+    kb = k if light_samples is None else check("light_samples", light_samples)
+    seed = check("seed", seed)
+    beta = (
+        (0.0 if brdf.kind == "model" else 0.15)
+        if cosine_share is None
+        else check("share", cosine_share, "cosine_share")
+    )
     bright, residual = env.split()
     if bright.size == 0:
         kb = 0
@@ -199,11 +203,14 @@ def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse
     rho - kd, by Monte Carlo with independent random numbers: each sample takes a random
     position in the pixel and one of three strategies with probabilities ``shares`` =
     (environment by energy, the BRDF's sampler, cosine), weighted by the mixture density."""
-    d = int(diameter)
-    rng = np.random.default_rng(seed)
-    if shares is None:
-        shares = (0.4, 0.45, 0.15)
-    c_env, c_lobe, c_cos = (float(v) / sum(shares) for v in shares)
+    d = check("diameter", diameter)
+    spp = check("spp", spp)
+    rng = np.random.default_rng(check("seed", seed))
+    g = check("diffuse_grid", diffuse_grid)
+    shares = (0.4, 0.45, 0.15) if shares is None else [check("share", v, "shares") for v in shares]
+    if len(shares) != 3 or sum(shares) <= 0:
+        raise ValueError(f"shares: expected three shares (environment, lobe, cosine) with a positive sum, got {shares}")
+    c_env, c_lobe, c_cos = (v / sum(shares) for v in shares)
     bb, aa = np.nonzero(touched_texels(d))
     total = np.zeros((d, d, 3))
     hits = np.zeros((d, d))
@@ -251,7 +258,6 @@ def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse
         np.add.at(total.reshape(-1, 3), pb[sel] * d + pa[sel], f * env.lookup(dirs) * w[:, None])
     total /= max(spp, 1)
     # coverage and the kd term on a regular sub-pixel grid (deterministic)
-    g = int(diffuse_grid)
     off = (np.arange(g) + 0.5) / g
     jx, jy = np.meshgrid(off, off)
     jx, jy = jx.ravel(), jy.ravel()
@@ -271,8 +277,17 @@ def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse
 # --- whole images -----------------------------------------------------------------------------
 
 
+def _check_row(layout, brdfs):
+    """One BRDF per sphere of the layout, at most (a layout from ``sphere_layout``)."""
+    n = len(brdfs)
+    if not 1 <= n <= layout.count:
+        raise ValueError(f"brdfs: expected 1 to {layout.count} (the layout's spheres), got {n}")
+
+
 def render_reference(layout, brdfs, env, spp=1024, seed=0):
     """(H, W, 4) premultiplied RGBA of the row of spheres, converged by Monte Carlo."""
+    spp, seed = check("spp", spp), check("seed", seed)
+    _check_row(layout, brdfs)
     tiles = []
     for i, brdf in enumerate(brdfs):
         rgb, cov = reference_sphere(brdf, env, layout.diameter, spp, seed + 7919 * i)
@@ -282,6 +297,8 @@ def render_reference(layout, brdfs, env, spp=1024, seed=0):
 
 def render_baked(layout, brdfs, env, lobe_samples=64, seed=0, light_samples=None):
     """(H, W, 4) premultiplied RGBA: what the baked path shows (texel = pixel)."""
+    lobe_samples, seed = check("bake_samples", lobe_samples, "lobe_samples"), check("seed", seed)
+    _check_row(layout, brdfs)
     tiles = []
     for i, brdf in enumerate(brdfs):
         rgb, cov = bake_sphere(brdf, env, layout.diameter, lobe_samples, seed + 7919 * i, light_samples)

@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from ..geometry import HALF_PI
+from ..limits import check
 from .envmap import _direction
 
 POWER_SHARE = 0.15  # the defensive share drawn by power alone
@@ -23,6 +24,7 @@ POWER_SHARE = 0.15  # the defensive share drawn by power alone
 def light_clusters(bright, count=32):
     """The ``LightClusters`` of a ``BrightTexels`` set, kept on the set (so they go when its
     map goes)."""
+    count = check("light_clusters", count, "count")
     per = bright.__dict__.setdefault("_clusters", {})
     if count not in per:
         per[count] = LightClusters(bright, count)

@@ -71,8 +71,10 @@ def work(table, targets, prof, fit, env, diameter, stale=lambda: False, post=lam
     the material's stored reachable region (else computed once here). The full synthesis is
     kept (``edit(..., keep=True)``): an Apply of the same sliders writes it without solving again."""
     from ..edit import Superseded
+    from ..limits import check
     from . import TableBRDF, bake_sphere
 
+    diameter = check("diameter", diameter)
     region = region if region is not None else region_for(prof, fit, targets.mode)
     try:
         # A synthesis made moot (a newer move, an Apply) stops at its next step, not at the end

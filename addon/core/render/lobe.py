@@ -163,7 +163,14 @@ class MomentParams:
     ) -> "MomentParams":
         """The sliders applied to the model, exactly as the editing engine defines the energy:
         alpha' = strength colour (alpha_b + boost (alpha - alpha_b)). The Hermite curve is
-        linear in its end values and slopes, so this is again a curve of the same form."""
+        linear in its end values and slopes, so this is again a curve of the same form.
+        The sliders are checked against their declared ranges (``core.limits``), as ``edit``'s."""
+        from types import SimpleNamespace
+
+        from ..limits import TARGET_FIELDS, check_targets
+
+        sliders = dict(strength=strength, colour=colour, grazing_boost=grazing_boost, mu_slope=mu_slope, sigma2=sigma2)
+        check_targets(SimpleNamespace(**sliders), TARGET_FIELDS)
         k = np.asarray(colour, float) * float(strength)
         b = float(grazing_boost)
         ab, a1, m1 = (np.asarray(v) for v in (self.alpha_b, self.alpha1, self.m1))

@@ -60,7 +60,11 @@ class Layout:
 
 def sphere_layout(width: int, height: int | None = None, count: int = 2, fill: float = 0.9) -> Layout:
     """``count`` spheres side by side, each about ``fill`` of its cell, pixel aligned."""
-    height = width if height is None else height
+    from ..limits import check
+
+    width = check("image_side", width, "width")
+    height = width if height is None else check("image_side", height, "height")
+    count, fill = check("spheres", count), check("fill", fill)
     if width < 4 * count or height < 4 or count < 1:
         raise ValueError(f"image {width}x{height} is too small for {count} sphere(s)")
     cell = width / count
