@@ -492,6 +492,10 @@ def test_operator_properties_share_the_bounds():
         limits.check_int(10**12, "Samples", 1, limits.MAX_SAMPLES)
 
 
+def _default_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupt(cmd, wait_for, tmp_path, env=None, timeout=60):
     """Start ``python -m addon cmd`` in its own process group, wait until ``wait_for()`` holds,
     send SIGINT to the group (as a terminal's Ctrl-C does) and time the exit."""
@@ -503,6 +507,9 @@ def _interrupt(cmd, wait_for, tmp_path, env=None, timeout=60):
         text=True,
         env=env or dict(os.environ),
         start_new_session=True,
+        # A terminal's Ctrl-C reaches a program whose SIGINT is at its default; a suite started
+        # as a background job of a script inherits it ignored, which the child would keep.
+        preexec_fn=_default_sigint,
     )
     t0 = time.monotonic()
     while not wait_for() and child.poll() is None and time.monotonic() - t0 < timeout:
