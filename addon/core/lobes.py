@@ -348,13 +348,13 @@ def fit_lobes(
     if nq > 1:
         vs = [v.with_lobes(rough, aspects) for v in vs]
         qi = _choose_aspects(vs, len(rough), nq, [v.share for v in vs], aspects.index(1.0))
-    else:
-        vs = [v.with_lobes(rough, aspects) for v in vs]
-        qi = np.full((len(rough), len(vs)), aspects.index(1.0))
+        cols = 1 + np.arange(len(rough))[:, None] * nq + qi  # (K, views)
+    else:  # round lobes: their columns in the dictionary's normal equations
+        qi = np.zeros((len(rough), len(vs)), int)
+        cols = np.repeat(1 + np.array(pick)[:, None], len(vs), axis=1)
     W = np.zeros((1 + len(rough), n_views, 3))
     for j, v in enumerate(vs):
-        idx = [0] + [1 + n * nq + int(qi[n, j]) for n in range(len(rough))]
-        W[:, j, :] = v.solve(idx)[0].T
+        W[:, j, :] = v.solve([0] + [int(c) for c in cols[:, j]])[0].T
     q = np.asarray(aspects)[qi]
     err, alb_err = measure(LobeFit(rough, W, shadowing, 0.0, 0.0, q), table)
     return LobeFit(rough, W, shadowing, err, alb_err, q)
