@@ -465,6 +465,8 @@ def test_the_panel_fits_blenders_default_width(lane):
         "applied",
         "preview",
         "reopened",
+        "lobes-chosen",
+        "lobes-applied",
     ], [s["step"] for s in shots]
     assert {s["chart"] for s in shots if s["step"] == "loaded"} == {"ENERGY", "MEAN", "VARIANCE", "REGION"}
     assert data["cut_control"]  # the check finds a label that does not fit

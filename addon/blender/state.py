@@ -241,9 +241,9 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
             ),
             (
                 "LOBES",
-                "Fitted lobes (approx.)",
-                "GGX lobes and a diffuse lobe whose colours follow the view angle, fitted to the edited table: "
-                "any engine",
+                "Lobes (approx.)",
+                "GGX lobes (stretched across the plane of incidence where Cycles renders) and a diffuse lobe, "
+                "their colours following the view angle, fitted to the edited table: any engine",
             ),
             ("PRINCIPLED", "Principled (approx.)", "a Principled BSDF fitted to the edited table: any engine"),
             ("OSL", "OSL tabulated", "the edited table itself, read by an OSL shader (Cycles with OSL)"),
