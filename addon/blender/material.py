@@ -132,7 +132,9 @@ def _across_plane_of_incidence(group):
     cross.location = (-500, 400)
     group.links.new(geo.outputs["Normal"], cross.inputs[0])
     group.links.new(geo.outputs["Incoming"], cross.inputs[1])
-    unit = group.nodes.new("ShaderNodeVectorMath")  # Cycles takes the tangent's length as given
+    # a unit tangent (Cycles' own orthonormalisation renders the same without it; one node buys
+    # independence from that)
+    unit = group.nodes.new("ShaderNodeVectorMath")
     unit.operation = "NORMALIZE"
     unit.location = (-350, 400)
     group.links.new(cross.outputs["Vector"], unit.inputs[0])
