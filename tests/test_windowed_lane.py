@@ -286,7 +286,6 @@ def test_the_artists_material_without_osl(lane):
     err, alb = measure(fit, table)
     assert err == pytest.approx(fit.error, rel=1e-3) and alb == pytest.approx(fit.albedo_error, rel=1e-3, abs=1e-4)
     assert f"{100 * fit.error:.1f} %" in art["label"]
-    # The window's fit is the engine's for that table (not a stale one).
     # The window's scene renders with EEVEE (3.4's default), which draws every lobe round: the
     # lobes were fitted round; the fit is the engine's for that table (not a stale one).
     assert art["engine"] == "BLENDER_EEVEE" and not fit.anisotropic
