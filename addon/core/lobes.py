@@ -27,6 +27,13 @@ the lobes (cosine-weighted, through the half vector on the table's own theta_h c
 equation, so that the energy the artist sees per view is the table's. The roughness of the
 lobes is picked greedily from a dictionary (the one that lowers the cost most, then the next),
 the cost summed over views with each view's share of a sphere's pixels.
+
+A lobe may also be stretched across the plane of incidence, by an aspect q_k(theta_o) read
+from the lookup like the colours (alpha sqrt(q) across, alpha / sqrt(q) in the plane; the
+nodes give Cycles the tangent N x I and the matching anisotropy). Highlights round about the
+mirror direction are stretched that way in half vectors, by about 1 / cos theta_o. After the
+roughness values, each lobe's aspect is chosen per view by coordinate descent. EEVEE ignores
+anisotropy: for a scene it renders the lobes are fitted round (``aspects=(1.0,)``).
 """
 
 from __future__ import annotations
