@@ -155,21 +155,12 @@ def fill_lobes(group, fit, image):
     facing = group.nodes.new("ShaderNodeLayerWeight")
     facing.inputs["Blend"].default_value = 0.5  # facing = 1 - |N.I| exactly
     facing.location = (-900, 0)
-    chain = []
-    for op, value in (("SUBTRACT", None), ("ARCCOSINE", None), ("MULTIPLY", 2.0 / 3.141592653589793)):
-        m = group.nodes.new("ShaderNodeMath")
-        m.operation = op
-        m.use_clamp = op == "MULTIPLY"
-        m.location = (-700 + 150 * len(chain), 0)
-        if op == "SUBTRACT":
-            m.inputs[0].default_value = 1.0
-            group.links.new(facing.outputs["Facing"], m.inputs[1])
-        else:
-            group.links.new(chain[-1].outputs[0], m.inputs[0])
-            if value is not None:
-                m.inputs[1].default_value = value
-        chain.append(m)
-    u = chain[-1].outputs[0]
+    # u = theta_o / 90° = arccos(1 - facing) * 2 / pi, clamped to [0, 1]
+    cos_o = _math(group, "SUBTRACT", (-700, 0), 1.0, facing.outputs["Facing"])
+    theta_o = _math(group, "ARCCOSINE", (-550, 0), cos_o.outputs[0])
+    u_node = _math(group, "MULTIPLY", (-400, 0), theta_o.outputs[0], 2.0 / 3.141592653589793)
+    u_node.use_clamp = True
+    u = u_node.outputs[0]
     rows = fit.lookup_pixels().shape[0]
     tangent = _across_plane_of_incidence(group) if fit.anisotropic else None
 

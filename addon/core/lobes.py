@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .principled import pixel_share, view_quadrature
+from .principled import pixel_share, reflect_about, view_quadrature
 
 N_VIEWS = 18  # texels of the lookup over theta_o in [0, 90°]
 N_LOBES = 3
@@ -195,11 +195,22 @@ def lobes_brdf(fit: LobeFit, wi, wo):
     wi, wo = np.asarray(wi, float), np.asarray(wo, float)
     theta = np.degrees(np.arccos(np.clip(wo[:, 2], -1.0, 1.0)))
     w = fit.weights_at(theta)  # (1 + K, n, 3)
-    q = fit.aspect_at(theta) if fit.anisotropic else np.ones((fit.n_lobes, len(theta)))
+    q = fit.aspect_at(theta)  # all 1 for round lobes: ggx_lobe's round path
     out = w[0].T / np.pi
     for k, r in enumerate(fit.roughness):
         out = out + w[k + 1].T * ggx_lobe(r * r, wi, wo, fit.shadowing, q[k])[None, :]
     return out
+
+
+def _table_at_views(table, views_deg):
+    """Per view: (deg, wi, wo, weights, rho (3, n)) on ``view_quadrature``'s directions where
+    the table was measured (missing cells left out)."""
+    from .merl import lookup
+
+    for deg, (wi, wo, w) in zip(views_deg, view_quadrature(views_deg, N_PHI_H)):
+        rho, valid = lookup(table, wi, np.broadcast_to(wo, wi.shape))
+        ok = valid.all(axis=0)
+        yield deg, wi[ok], wo, w[ok], rho[:, ok]
 
 
 def _features(rough, wi, wo, shadowing, aspects=(1.0,)):
@@ -225,13 +236,9 @@ class _View:
     albedo equation folded in. ``with_lobes`` makes them again for other lobes, the table's
     values at the quadrature kept."""
 
-    def __init__(self, table, deg, wi, wo, w, shadowing, dictionary, aspects=(1.0,)):
-        from .merl import lookup
-
-        rho, valid = lookup(table, wi, np.broadcast_to(wo, wi.shape))
-        ok = valid.all(axis=0)
+    def __init__(self, deg, wi, wo, w, rho, shadowing, dictionary, aspects=(1.0,)):
         self.deg, self.wo, self.shadowing = deg, wo, shadowing
-        self.wi, self.w, self.rho = wi[ok], w[ok], rho[:, ok]
+        self.wi, self.w, self.rho = wi, w, rho
         self.share = pixel_share(deg)
         self._normal_equations(dictionary, aspects)
 
@@ -343,10 +350,7 @@ def fit_lobes(
     if 1.0 not in aspects or any(not ASPECT_RANGE[0] <= q <= ASPECT_RANGE[1] for q in aspects):
         raise ValueError(f"aspects must hold 1 and lie in {ASPECT_RANGE}")
     views = texel_views_deg(n_views)
-    vs = [
-        _View(table, deg, wi, wo, w, shadowing, dictionary)
-        for deg, (wi, wo, w) in zip(views, view_quadrature(views, N_PHI_H))
-    ]
+    vs = [_View(*at, shadowing, dictionary) for at in _table_at_views(table, views)]
     # The roughness values among round lobes, then each lobe's aspect per view (the first texel
     # stays round: at normal view the plane of incidence, the lobe's tangent, is undefined).
     pick = _greedy(vs, min(n_lobes, len(dictionary)), len(dictionary), [v.share for v in vs])
@@ -372,16 +376,10 @@ def measure(fit: LobeFit, table, views_deg=ERROR_VIEWS_DEG):
     L2 error, cosine and pixel-share weighted over all channels, and the largest relative error
     of the directional albedo over the views and channels (where the table holds 0.1 % of its
     largest albedo)."""
-    from .merl import lookup
-
     num = den = 0.0
     alb_t, alb_f = [], []
-    for deg, (wi, wo, w) in zip(views_deg, view_quadrature(views_deg, N_PHI_H)):
-        wo_b = np.broadcast_to(wo, wi.shape)
-        rho, valid = lookup(table, wi, wo_b)
-        ok = valid.all(axis=0)
-        wi, wo_b, w, rho = wi[ok], wo_b[ok], w[ok], rho[:, ok]
-        vals = lobes_brdf(fit, wi, wo_b)
+    for deg, wi, wo, w, rho in _table_at_views(table, views_deg):
+        vals = lobes_brdf(fit, wi, np.broadcast_to(wo, wi.shape))
         s = pixel_share(deg)
         num += s * float(np.sum(w * (vals - rho) ** 2))
         den += s * float(np.sum(w * rho**2))
@@ -409,16 +407,12 @@ def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg=NEAR_MIR
     those rings outside that span, no such setup follows. Returns that part's share of the
     table's norm in ``measure``'s weighting (the same denominator; the rings integrated more
     finely over azimuth, each by its weighted least-squares residual)."""
-    from .merl import RES_TH, lookup
+    from .merl import lookup, theta_h_edges
 
-    den = 0.0
-    for deg, (wi, wo, w) in zip(views_deg, view_quadrature(views_deg, N_PHI_H)):
-        rho, valid = lookup(table, wi, np.broadcast_to(wo, wi.shape))
-        ok = valid.all(axis=0)
-        den += pixel_share(deg) * float(np.sum(w[ok] * rho[:, ok] ** 2))
+    den = sum(pixel_share(deg) * float(np.sum(w * rho**2)) for deg, _, _, w, rho in _table_at_views(table, views_deg))
     if den <= 0.0:
         return 0.0
-    edges = (np.arange(RES_TH + 1) / RES_TH) ** 2 * (0.5 * np.pi)
+    edges = theta_h_edges()
     rings = int(np.searchsorted(edges, math.radians(theta_h_max_deg)))
     ph = (np.arange(RING_AZIMUTHS) + 0.5) / RING_AZIMUTHS * 2.0 * np.pi
     basis = [np.ones_like(ph)]
@@ -432,11 +426,9 @@ def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg=NEAR_MIR
         for k in range(rings):
             th, dth = 0.5 * (edges[k] + edges[k + 1]), edges[k + 1] - edges[k]
             h = np.stack((np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.full_like(ph, np.cos(th))), axis=-1)
-            oh = h @ wo
-            wi = 2.0 * oh[:, None] * h - wo
-            w = 4.0 * oh * math.sin(th) * dth * (2.0 * np.pi / len(ph)) * wi[:, 2]
+            wi, w, above = reflect_about(h, math.sin(th) * dth * (2.0 * np.pi / len(ph)), wo)
             rho, valid = lookup(table, wi, np.broadcast_to(wo, wi.shape))
-            if not valid.all() or np.any(wi[:, 2] <= 0.0):
+            if not (valid.all() and above.all()):
                 continue
             # The part no closure follows: the residual of the weighted least-squares fit of
             # the ring by the span of B (the best any closure can do there).

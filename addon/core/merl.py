@@ -216,6 +216,12 @@ def cell_indices_view(theta, phi, sin_e, cos_e):
     return idx.reshape(shape)
 
 
+def theta_h_edges():
+    """The edges of the table's theta_h cells (RES_TH + 1, radians): square-root spaced, so the
+    cells near the mirror are fine enough for narrow peaks."""
+    return (np.arange(RES_TH + 1) / RES_TH) ** 2 * HALF_PI
+
+
 def cell_centres():
     """Rusinkiewicz angles at which each cell is sampled when tabulating (flat order)."""
     ith, itd, ipd = np.meshgrid(np.arange(RES_TH), np.arange(RES_TD), np.arange(RES_PD), indexing="ij")

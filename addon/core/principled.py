@@ -91,9 +91,9 @@ def principled_brdf(fit, wi, wo):
 def view_quadrature(views_deg, n_phi=N_PHI_H):
     """Per view: (wi (n, 3), wo (3,), weights cos(theta_i) d omega_i), through the half vector,
     one point per theta_h cell of the table (its square-root spacing resolves narrow peaks)."""
-    from .merl import RES_TH
+    from .merl import theta_h_edges
 
-    edges = (np.arange(RES_TH + 1) / RES_TH) ** 2 * (0.5 * np.pi)
+    edges = theta_h_edges()
     th, dth = 0.5 * (edges[:-1] + edges[1:]), np.diff(edges)
     ph = (np.arange(n_phi) + 0.5) / n_phi * 2.0 * np.pi
     TH, PH = np.meshgrid(th, ph, indexing="ij")
@@ -103,12 +103,18 @@ def view_quadrature(views_deg, n_phi=N_PHI_H):
     for deg in views_deg:
         t = math.radians(deg)
         wo = np.array([math.sin(t), 0.0, math.cos(t)])
-        oh = h @ wo
-        wi = 2.0 * oh[:, None] * h - wo
-        ok = (oh > 0.0) & (wi[:, 2] > 0.0)
-        # d omega_i = 4 (wo.h) d omega_h
-        out.append((wi[ok], wo, (4.0 * oh * dwh * wi[:, 2])[ok]))
+        wi, w, ok = reflect_about(h, dwh, wo)
+        out.append((wi[ok], wo, w[ok]))
     return out
+
+
+def reflect_about(h, dwh, wo):
+    """``wo`` reflected about each half vector ``h`` (n, 3) of solid angle ``dwh``: (wi, its
+    weight cos(theta_i) d omega_i, where wo.h and wi both lie above the surface), with
+    d omega_i = 4 (wo.h) d omega_h."""
+    oh = h @ wo
+    wi = 2.0 * oh[:, None] * h - wo
+    return wi, 4.0 * oh * dwh * wi[:, 2], (oh > 0.0) & (wi[:, 2] > 0.0)
 
 
 def pixel_share(deg):

@@ -285,7 +285,7 @@ def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=
         t_ref = time.perf_counter() - t0
         lf = fit_lobes(table, shadowing=shadowing_for(bpy.app.version))
         # what Apply installs for a scene EEVEE renders: round lobes (EEVEE ignores anisotropy)
-        lf_round = fit_lobes(table, shadowing=shadowing_for(bpy.app.version), aspects=(1.0,))
+        lf_round = fit_lobes(table, shadowing=shadowing_for(bpy.app.version), aspects=(1.0,)) if eevee else None
         pf = fit_principled(table)
         for (engine, what), (kind, rep) in itertools.product(engines, (("lobes", lf), ("Principled", pf))):
             if kind == "lobes" and engine != "CYCLES":
