@@ -75,14 +75,20 @@ BAD = [
 ]
 
 
-def test_bad_files_are_cancelled_with_a_report_and_keep_the_previous_analysis(fresh, tmp_path, base_raw, stress_log):
+def _loaded(bpy, tmp_path, sample, material):
+    """A copy of ``sample`` in ``tmp_path`` loaded into a new material: (the material, the copy)."""
     import samples
 
+    path = tmp_path / f"{sample}.binary"
+    shutil.copy(samples.sample_path(sample), path)
+    mat = bpy.data.materials.new(material)
+    assert bpy.ops.brdf_moments.load_merl(filepath=str(path), material=material) == {"FINISHED"}
+    return mat, path
+
+
+def test_bad_files_are_cancelled_with_a_report_and_keep_the_previous_analysis(fresh, tmp_path, base_raw, stress_log):
     bpy = fresh
-    good = tmp_path / "good.binary"
-    shutil.copy(samples.sample_path("gold"), good)
-    mat = bpy.data.materials.new("M")
-    assert bpy.ops.brdf_moments.load_merl(filepath=str(good), material="M") == {"FINISHED"}
+    mat, good = _loaded(bpy, tmp_path, "gold", "M")
     state = mat.brdf_moments
     before = (state.source_path, state.fit_mu_slope, state.fit_sigma2, state.profiles_data)
     for name, build, fault in BAD:
@@ -142,11 +148,8 @@ def test_apply_at_the_slider_limits_never_breaks_blender(fresh, tmp_path, stress
     import samples
 
     bpy = fresh
-    src = tmp_path / "glossy.binary"
-    shutil.copy(samples.sample_path("ggx_glossy"), src)
-    digest = sha256(src)
-    mat = bpy.data.materials.new("G")
-    assert bpy.ops.brdf_moments.load_merl(filepath=str(src), material="G") == {"FINISHED"}
+    digest = sha256(samples.sample_path("ggx_glossy"))  # the copy's bytes before anything read it
+    mat, src = _loaded(bpy, tmp_path, "ggx_glossy", "G")
     state = mat.brdf_moments
     # Property limits clamp what a drag can set: these are the extremes a user can reach.
     state.mu_slope, state.sigma2, state.mode = 5.0, -1.0, "model"
@@ -181,13 +184,8 @@ def test_apply_with_a_stored_slider_beyond_its_range_is_one_error_line(fresh, tm
     """A slider value the property's limits never let a drag set, but a file from another
     version or a script writing the stored value can hold: the engine refuses it (declared
     ranges, core/limits.py), and Apply reports one ERROR line naming the slider and cancels."""
-    import samples
-
     bpy = fresh
-    src = tmp_path / "glossy.binary"
-    shutil.copy(samples.sample_path("ggx_glossy"), src)
-    mat = bpy.data.materials.new("R")
-    assert bpy.ops.brdf_moments.load_merl(filepath=str(src), material="R") == {"FINISHED"}
+    mat, _ = _loaded(bpy, tmp_path, "ggx_glossy", "R")
     state = mat.brdf_moments
     state[prop] = value  # the stored value itself: the RNA min/max clamp only what is set through them
     held = getattr(state, prop)
