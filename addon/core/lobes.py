@@ -143,44 +143,55 @@ def _interp_weights(weights, theta_deg):
 
 
 def ggx_lobe(alpha, wi, wo, shadowing="correlated", aspect=1.0):
-    """Cycles' GGX reflection without Fresnel, D G / (4 cos_i cos_o), for unit vectors (..., 3).
-    ``aspect`` q (scalar or per point) stretches it across the plane of incidence of ``wo``:
-    alpha sqrt(q) across, alpha / sqrt(q) in it (the tangent the node setup gives Cycles)."""
+    """Cycles' GGX reflection without Fresnel (``microfacet_lobe`` with distribution "ggx")."""
+    return microfacet_lobe("ggx", alpha, wi, wo, shadowing, aspect)
+
+
+def _lambda(distribution, a2t2):
+    """Smith's Lambda from alpha² tan² theta of a direction (alpha along its azimuth): exact for
+    GGX; for Beckmann the rational fit Cycles uses (Walter et al. 2007)."""
+    if distribution == "ggx":
+        return 0.5 * (np.sqrt(1.0 + a2t2) - 1.0)
+    a = 1.0 / np.sqrt(np.maximum(a2t2, 1e-300))
+    return np.where(a < 1.6, (1.0 - 1.259 * a + 0.396 * a * a) / (3.535 * a + 2.181 * a * a), 0.0)
+
+
+def microfacet_lobe(distribution, alpha, wi, wo, shadowing="correlated", aspect=1.0):
+    """Cycles' GGX or Beckmann reflection without Fresnel, D G / (4 cos_i cos_o), for unit
+    vectors (..., 3). ``aspect`` q (scalar or per point) stretches it across the plane of
+    incidence of ``wo``: alpha sqrt(q) across, alpha / sqrt(q) in it (the tangent the node setup
+    gives Cycles). The nodes use GGX; Beckmann serves ``node_bound``."""
+    if distribution not in ("ggx", "beckmann"):
+        raise ValueError(f"unknown distribution {distribution!r}")
     alpha = max(float(alpha), 1e-7)
     h = wi + wo
     h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
     ci = np.clip(wi[..., 2], 1e-9, 1.0)
     co = np.clip(wo[..., 2], 1e-9, 1.0)
     q = np.asarray(aspect, float)
-    if np.all(q == 1.0):
-        a2 = alpha**2
-        ch2 = np.clip(h[..., 2], 0.0, 1.0) ** 2
-        d = a2 / (np.pi * (1.0 + (a2 - 1.0) * ch2) ** 2)
+    # axes: "in" along wo's azimuth, "across" perpendicular to it (any pair at normal view)
+    rad = np.hypot(wo[..., 0], wo[..., 1])
+    safe = rad > 1e-12
+    cx = np.where(safe, wo[..., 0] / np.where(safe, rad, 1.0), 1.0)
+    cy = np.where(safe, wo[..., 1] / np.where(safe, rad, 1.0), 0.0)
+    a_in, a_across = alpha / np.sqrt(q), alpha * np.sqrt(q)
 
-        def lam(c):
-            return 0.5 * (np.sqrt(1.0 + a2 * np.maximum(1.0 / (c * c) - 1.0, 0.0)) - 1.0)
+    def split(v):
+        return v[..., 0] * cx + v[..., 1] * cy, -v[..., 0] * cy + v[..., 1] * cx
 
-        lam_i, lam_o = lam(ci), lam(co)
-    else:
-        # axes: "in" along wo's azimuth, "across" perpendicular to it (any pair at normal view)
-        rad = np.hypot(wo[..., 0], wo[..., 1])
-        safe = rad > 1e-12
-        cx = np.where(safe, wo[..., 0] / np.where(safe, rad, 1.0), 1.0)
-        cy = np.where(safe, wo[..., 1] / np.where(safe, rad, 1.0), 0.0)
-        a_in, a_across = alpha / np.sqrt(q), alpha * np.sqrt(q)
-
-        def split(v):
-            return v[..., 0] * cx + v[..., 1] * cy, -v[..., 0] * cy + v[..., 1] * cx
-
-        hx, hy = split(h)
-        hz = np.clip(h[..., 2], 0.0, 1.0)
+    hx, hy = split(h)
+    hz = np.clip(h[..., 2], 0.0, 1.0)
+    if distribution == "ggx":
         d = 1.0 / (np.pi * a_in * a_across * ((hx / a_in) ** 2 + (hy / a_across) ** 2 + hz * hz) ** 2)
+    else:  # exp(-tan² theta_h / alpha(phi_h)²) / (pi alpha_x alpha_y cos⁴ theta_h)
+        s2 = ((hx / a_in) ** 2 + (hy / a_across) ** 2) / np.maximum(hz * hz, 1e-300)
+        d = np.exp(-s2) / (np.pi * a_in * a_across * np.maximum(hz, 1e-300) ** 4)
 
-        def lam(v, c):
-            x, y = split(v)
-            return 0.5 * (np.sqrt(1.0 + ((a_in * x) ** 2 + (a_across * y) ** 2) / (c * c)) - 1.0)
+    def lam(v, c):
+        x, y = split(v)
+        return _lambda(distribution, ((a_in * x) ** 2 + (a_across * y) ** 2) / (c * c))
 
-        lam_i, lam_o = lam(wi, ci), lam(wo, co)
+    lam_i, lam_o = lam(wi, ci), lam(wo, co)
     if shadowing == "correlated":
         g = 1.0 / (1.0 + lam_i + lam_o)
     elif shadowing == "separable":

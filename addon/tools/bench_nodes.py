@@ -2,8 +2,10 @@
 (issue 28), engine only. For every measured material and its edits (σ̃² ×0.5, ×2, strength
 0.5), the lobe mixture the nodes render (``core.lobes``) and the single Principled BSDF
 (``core.principled``) against the edited table: BRDF error and directional-albedo error (as
-each fit states them), the lobe fit's time, and the table's near-mirror floor (the error no
-node setup can go below, ``lobes.near_mirror_floor``). Prints a markdown table and a summary."""
+each fit states them), the lobe fit's time, the table's near-mirror floor (the error no
+setup of isotropic closures can go below, ``lobes.near_mirror_floor``) and the best error of
+any view-dependent mix of Blender's closure shapes (``node_bound``). Prints a markdown table
+and a summary."""
 
 from __future__ import annotations
 
@@ -41,25 +43,27 @@ def bench_nodes(names, principled=True, out=print):
 
     from ..core.lobes import fit_lobes, near_mirror_floor
     from ..core.merl import read_merl
+    from ..core.node_bound import node_bound
     from ..core.principled import fit_principled
 
     out(
         "| material | edit | lobes: BRDF error | lobes: albedo error | Principled: BRDF | Principled: albedo "
-        "| floor (any nodes) | fit time |"
+        "| near-mirror floor | best any closures | fit time |"
     )
-    out("|---|---|---|---|---|---|---|---|")
-    errs, albs, times, perrs, palbs, floors = [], [], [], [], [], []
+    out("|---|---|---|---|---|---|---|---|---|")
+    errs, albs, times, perrs, palbs, floors, bounds = [], [], [], [], [], [], []
     for name in names:
         table = read_merl(samples.sample_path(name))
         for label, t in edited_tables(table):
             if isinstance(t, Exception):
-                out(f"| {name} | {label} | not editable: {t} | | | | | |")
+                out(f"| {name} | {label} | not editable: {t} | | | | | | |")
                 continue
             t0 = time.perf_counter()
             f = fit_lobes(t)
             took = time.perf_counter() - t0
             p = fit_principled(t) if principled else None
             floors.append(near_mirror_floor(t))
+            bounds.append(node_bound(t))
             errs.append(f.error)
             albs.append(f.albedo_error)
             times.append(took)
@@ -70,7 +74,7 @@ def bench_nodes(names, principled=True, out=print):
                 pe, pa = f"{p.error:.1%}", f"{p.albedo_error:.1%}"
             out(
                 f"| {name} | {label} | {f.error:.1%} | {f.albedo_error:.1%} | {pe} | {pa} | {floors[-1]:.1%} "
-                f"| {took:.2f} s |"
+                f"| {bounds[-1]:.1%} | {took:.2f} s |"
             )
             sys.stdout.flush()
     e, a = np.array(errs), np.array(albs)
@@ -84,6 +88,12 @@ def bench_nodes(names, principled=True, out=print):
     out(
         f"Near-mirror floor (no setup of isotropic closures goes below it) over the same: median {np.median(fl):.1%}, worst "
         f"{fl.max():.1%}; above 30 %: {int(np.sum(fl > 0.3))} tables, above 10 %: {int(np.sum(fl > 0.1))}."
+    )
+    bd = np.array(bounds)
+    out(
+        f"Best any view-dependent mix of the closures reaches (node_bound) over the same: median {np.median(bd):.1%}, "
+        f"90th percentile {np.percentile(bd, 90):.1%}, worst {bd.max():.1%}; at most 10 %: {int(np.sum(bd <= 0.1))} "
+        f"tables, above 30 %: {int(np.sum(bd > 0.3))}."
     )
     if perrs:
         out(
