@@ -94,8 +94,9 @@ def test_a_table_made_of_the_shapes_is_reached_and_a_lobe_fit_states_more():
 
 @pytest.mark.parametrize("name", ["ggx_glossy", "phong", "gold", "ggx_mirror"])
 def test_no_lobe_fit_states_less_than_the_bound(name):
-    """The fit's lobes are among the bound's shapes (its grids hold the fit's), so the error a
-    fit states can never be below the bound on the same table."""
+    """The fit's lobes are among the bound's shapes (its grids hold the fit's; an aspect the
+    lookup interpolates between texels is followed by the neighbouring ones), so the error a fit
+    states is not below the bound on the same table."""
     import samples
     from addon.core.merl import read_merl
 
