@@ -159,10 +159,21 @@ def test_a_lobe_round_about_the_mirror_is_met_by_a_stretched_one():
     assert L.measure(again, table) == pytest.approx((fit.error, fit.albedo_error), rel=1e-4)
 
 
-def test_the_stretched_lobe_is_the_anisotropic_ggx_of_its_axes():
-    """ggx_lobe with an aspect against the textbook anisotropic GGX written in the frame whose x
-    axis is the view's azimuth: alpha / sqrt(q) along it, alpha sqrt(q) across; aspect 1 is the
-    round lobe."""
+def test_the_beckmann_lobe_is_the_samples_beckmann_without_fresnel():
+    """f0 = 1: the samples' Beckmann (Walter's G1 written as a ratio) is D G1 G1 / (4 cos cos)."""
+    from samples.analytic import Beckmann
+
+    wi, wo = _directions(400, 11)
+    for m in (0.05, 0.2, 0.6):
+        ref = Beckmann(roughness=m)(wi, wo)[0]
+        np.testing.assert_allclose(L.microfacet_lobe("beckmann", m, wi, wo, "separable"), ref, rtol=1e-9)
+
+
+@pytest.mark.parametrize("distribution", ["ggx", "beckmann"])
+def test_the_stretched_lobe_is_the_anisotropic_lobe_of_its_axes(distribution):
+    """microfacet_lobe with an aspect against the textbook anisotropic GGX or Beckmann written in
+    the frame whose x axis is the view's azimuth: alpha / sqrt(q) along it, alpha sqrt(q) across,
+    Lambda from a direction's projected roughness; aspect 1 is the round lobe."""
     wi, wo = _directions(400, 7)
     alpha, q = 0.3, 2.5
     ax, ay = alpha / np.sqrt(q), alpha * np.sqrt(q)
@@ -175,11 +186,24 @@ def test_the_stretched_lobe_is_the_anisotropic_ggx_of_its_axes():
     li, lo = local(wi), local(wo)
     h = li + lo
     h /= np.linalg.norm(h, axis=1, keepdims=True)
-    d = 1.0 / (np.pi * ax * ay * ((h[:, 0] / ax) ** 2 + (h[:, 1] / ay) ** 2 + h[:, 2] ** 2) ** 2)
+    if distribution == "ggx":
+        d = 1.0 / (np.pi * ax * ay * ((h[:, 0] / ax) ** 2 + (h[:, 1] / ay) ** 2 + h[:, 2] ** 2) ** 2)
 
-    def lam(v):
-        return (-1.0 + np.sqrt(1.0 + ((ax * v[:, 0]) ** 2 + (ay * v[:, 1]) ** 2) / v[:, 2] ** 2)) / 2.0
+        def lam(v):
+            return (-1.0 + np.sqrt(1.0 + ((ax * v[:, 0]) ** 2 + (ay * v[:, 1]) ** 2) / v[:, 2] ** 2)) / 2.0
+
+    else:
+        tan2 = (h[:, 0] ** 2 + h[:, 1] ** 2) / h[:, 2] ** 2
+        cos2phi = h[:, 0] ** 2 / (h[:, 0] ** 2 + h[:, 1] ** 2)
+        d = np.exp(-tan2 * (cos2phi / ax**2 + (1 - cos2phi) / ay**2)) / (np.pi * ax * ay * h[:, 2] ** 4)
+
+        def lam(v):
+            # a = 1 / (alpha(phi) tan theta), alpha(phi) sin theta = |(ax x, ay y)|
+            a = v[:, 2] / np.hypot(ax * v[:, 0], ay * v[:, 1])
+            return np.where(a < 1.6, (1 - 1.259 * a + 0.396 * a * a) / (3.535 * a + 2.181 * a * a), 0.0)
 
     want = d / (1.0 + lam(li) + lam(lo)) / (4.0 * li[:, 2] * lo[:, 2])
-    np.testing.assert_allclose(L.ggx_lobe(alpha, wi, wo, "correlated", q), want, rtol=1e-9)
-    np.testing.assert_allclose(L.ggx_lobe(alpha, wi, wo, "correlated", 1.0), L.ggx_lobe(alpha, wi, wo), rtol=1e-12)
+    np.testing.assert_allclose(L.microfacet_lobe(distribution, alpha, wi, wo, "correlated", q), want, rtol=1e-9)
+    if distribution == "ggx":
+        np.testing.assert_allclose(L.ggx_lobe(alpha, wi, wo, "correlated", q), want, rtol=1e-9)
+        np.testing.assert_allclose(L.ggx_lobe(alpha, wi, wo, "correlated", 1.0), L.ggx_lobe(alpha, wi, wo), rtol=1e-12)

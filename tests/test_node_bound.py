@@ -1,5 +1,6 @@
-"""How close any node setup could come to a table (``core.node_bound``): its closure shapes
-against textbook forms, and the bound itself on tables whose content is known."""
+"""How close any node setup could come to a table (``core.node_bound``): its own closure shapes
+against textbook forms (the microfacet lobes it shares with ``core.lobes`` are checked in
+test_lobes), and the bound itself on tables whose content is known."""
 
 import numpy as np
 import pytest
@@ -7,51 +8,6 @@ import pytest
 from addon.core import lobes as L
 from addon.core import node_bound as B
 from addon.core.merl import tabulate
-
-
-def _directions(n, seed):
-    rng = np.random.default_rng(seed)
-    v = rng.normal(size=(2, n, 3))
-    v[..., 2] = np.abs(v[..., 2]) + 1e-3
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
-def test_the_beckmann_lobe_is_the_samples_beckmann_without_fresnel():
-    """f0 = 1: the samples' Beckmann (Walter's G1 written as a ratio) is D G1 G1 / (4 cos cos)."""
-    from samples.analytic import Beckmann
-
-    wi, wo = _directions(400, 11)
-    for m in (0.05, 0.2, 0.6):
-        ref = Beckmann(roughness=m)(wi, wo)[0]
-        np.testing.assert_allclose(L.microfacet_lobe("beckmann", m, wi, wo, "separable"), ref, rtol=1e-9)
-
-
-def test_the_stretched_beckmann_is_the_anisotropic_beckmann_of_its_axes():
-    """Written in the frame whose x axis is the view's azimuth: alpha / sqrt(q) along it, alpha
-    sqrt(q) across, Lambda from the direction's projected roughness."""
-    wi, wo = _directions(400, 12)
-    alpha, q = 0.3, 2.5
-    ax, ay = alpha / np.sqrt(q), alpha * np.sqrt(q)
-    phi = np.arctan2(wo[:, 1], wo[:, 0])
-    c, s = np.cos(phi), np.sin(phi)
-
-    def local(v):
-        return np.stack((v[:, 0] * c + v[:, 1] * s, -v[:, 0] * s + v[:, 1] * c, v[:, 2]), axis=1)
-
-    li, lo = local(wi), local(wo)
-    h = li + lo
-    h /= np.linalg.norm(h, axis=1, keepdims=True)
-    tan2 = (h[:, 0] ** 2 + h[:, 1] ** 2) / h[:, 2] ** 2
-    cos2phi = h[:, 0] ** 2 / (h[:, 0] ** 2 + h[:, 1] ** 2)
-    d = np.exp(-tan2 * (cos2phi / ax**2 + (1 - cos2phi) / ay**2)) / (np.pi * ax * ay * h[:, 2] ** 4)
-
-    def lam(v):
-        a_dir = np.sqrt((ax * v[:, 0]) ** 2 + (ay * v[:, 1]) ** 2) / np.hypot(v[:, 0], v[:, 1])
-        a = v[:, 2] / (a_dir * np.hypot(v[:, 0], v[:, 1]))
-        return np.where(a < 1.6, (1 - 1.259 * a + 0.396 * a * a) / (3.535 * a + 2.181 * a * a), 0.0)
-
-    want = d / (1.0 + lam(li) + lam(lo)) / (4.0 * li[:, 2] * lo[:, 2])
-    np.testing.assert_allclose(L.microfacet_lobe("beckmann", alpha, wi, wo, "correlated", q), want, rtol=1e-9)
 
 
 @pytest.mark.parametrize("sigma", [0.2, 0.5, 1.0])
