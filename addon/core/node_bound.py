@@ -96,9 +96,10 @@ def closure_shapes(wi, wo, shadowing="correlated"):
     q = np.asarray(ASPECTS, float)[:, None]
     for r in ROUGHNESS:
         for dist in ("ggx", "beckmann"):
-            for row in np.broadcast_to(microfacet_lobe(dist, r * r, wi, wo_b, shadowing, q), (len(q), len(wi))):
+            stretched = np.broadcast_to(microfacet_lobe(dist, r * r, wi, wo_b, shadowing, q), (len(q), len(wi)))
+            for row in stretched:
                 add(row)
-            lobe = microfacet_lobe(dist, r * r, wi, wo_b, shadowing)
+            lobe = stretched[ASPECTS.index(1.0)]  # the round lobe
             add(lobe * schlick)
             for fresnel in (f82, hd, hd * hd):
                 add(lobe * fresnel, either=True)
