@@ -1,0 +1,125 @@
+"""The roughness scale an edit asks for (SPEC §3 "Editing", step 4), and the material's curve.
+
+The artist asks for a variance sigma~^2; the operator (``roughness.scale_roughness``) takes a
+roughness scale s. sigma~^2(s), the variance the edited table re-fits to, is monotone in s but
+not proportional to s^2 (masking and the horizon pull it), so s is solved for: a secant on
+log sigma~^2 against log s, started from the material's curve, each step one synthesis and one
+re-measure of the table it makes (the same measurement Apply reports).
+
+The material's curve is (mu~, sigma~^2) at a ladder of scales: what the roughness edit of this
+material reaches, drawn on the region plot; mu~ follows sigma~^2 along it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..fits import fit_material
+from ..profiles import compute_profiles
+from .roughness import S_RANGE, Source, scale_roughness
+
+CURVE_SCALES = (0.35, 0.5, 0.7, 0.85, 1.0, 1.2, 1.4, 2.0, 2.8)  # the ladder the curve is drawn on
+SOLVE_TOLERANCE = 0.002  # relative, on sigma~^2: well inside the 1 % an edit promises
+SOLVE_STEPS = 6
+
+
+def measure(table, theta_o, split=True):
+    """(profiles, fit) of a table as a fresh analysis of it would measure them (its own floor)."""
+    prof = compute_profiles(table, theta_o, split=split)
+    return prof, fit_material(prof)
+
+
+@dataclass
+class MaterialCurve:
+    """(mu~, sigma~^2) of the material with its roughness scaled by each of ``scales``."""
+
+    scales: np.ndarray
+    mu: np.ndarray
+    sigma2: np.ndarray
+
+    def usable(self):
+        return np.isfinite(self.mu) & np.isfinite(self.sigma2) & (self.sigma2 > 0)
+
+    def scale_for(self, sigma2: float) -> float:
+        """The scale at which the curve reaches ``sigma2`` (log-log interpolation; clamped to
+        the ladder's ends)."""
+        ok = self.usable()
+        x, y = np.log(self.sigma2[ok]), np.log(self.scales[ok])
+        order = np.argsort(x)
+        return float(np.exp(np.interp(math.log(max(sigma2, 1e-300)), x[order], y[order])))
+
+    def mu_at(self, sigma2: float) -> float:
+        """The mean slope the material re-fits to when its roughness is edited to ``sigma2``."""
+        ok = self.usable()
+        x = np.log(self.sigma2[ok])
+        order = np.argsort(x)
+        return float(np.interp(math.log(max(sigma2, 1e-300)), x[order], self.mu[ok][order]))
+
+    def to_json(self) -> dict:
+        clean = lambda a: [None if not np.isfinite(v) else float(v) for v in np.asarray(a, float)]  # noqa: E731
+        return {"scales": clean(self.scales), "mu": clean(self.mu), "sigma2": clean(self.sigma2)}
+
+
+def material_curve(src: Source, theta_o, split=True, scales=CURVE_SCALES, stop=None) -> MaterialCurve:
+    """The material's curve: one synthesis and one re-measure per scale."""
+    mu, s2 = [], []
+    for s in scales:
+        if stop is not None and stop():
+            raise InterruptedError("superseded")
+        table = scale_roughness(src, float(s))[0]
+        fit = measure(table, theta_o, split)[1]
+        mu.append(np.nan if fit.get("mu_slope") is None else fit["mu_slope"])
+        s2.append(np.nan if fit.get("sigma2") is None else fit["sigma2"])
+    return MaterialCurve(np.asarray(scales, float), np.asarray(mu, float), np.asarray(s2, float))
+
+
+@dataclass
+class ScaleSolution:
+    scale: float
+    table: object  # the MerlTable made at ``scale``
+    profiles: object
+    fit: dict
+    steps: int
+    converged: bool
+    report: dict
+
+
+def solve_scale(src: Source, sigma2: float, theta_o, fitted_sigma2: float, split=True, start=None, stop=None):
+    """The roughness scale whose table re-fits to ``sigma2``; a ``ScaleSolution`` carrying that
+    table and its measurement. ``start``: a first guess (the curve's); ``fitted_sigma2`` is the
+    source's own (s = 1)."""
+    lo, hi = S_RANGE
+    target = math.log(sigma2)
+    pts = [(0.0, math.log(fitted_sigma2))]  # (log s, log sigma~^2)
+    s = float(np.clip(start if start is not None else math.sqrt(sigma2 / fitted_sigma2), lo, hi))
+    best = None
+    for step in range(1, SOLVE_STEPS + 1):
+        if stop is not None and stop():
+            raise InterruptedError("superseded")
+        table, report = scale_roughness(src, s)
+        prof, fit = measure(table, theta_o, split)
+        got = fit.get("sigma2")
+        if got is None or not got > 0:
+            break
+        err = abs(got / sigma2 - 1.0)
+        if best is None or err < best[0]:
+            best = (err, ScaleSolution(s, table, prof, fit, step, False, report))
+        if err <= SOLVE_TOLERANCE:
+            break
+        pts.append((math.log(s), math.log(got)))
+        (x0, y0), (x1, y1) = pts[-2], pts[-1]
+        slope = (y1 - y0) / (x1 - x0) if x1 != x0 else 2.0
+        if not slope > 0.05:  # sigma~^2 rises with s; a flat or inverted secant is noise
+            slope = 2.0
+        s_new = float(np.clip(math.exp(x1 + (target - y1) / slope), lo, hi))
+        if s_new == s:
+            break
+        s = s_new
+    if best is None:
+        return None
+    err, sol = best
+    sol.converged = err <= SOLVE_TOLERANCE
+    return sol
