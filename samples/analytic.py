@@ -15,6 +15,15 @@ def _rgb(v):
     return np.broadcast_to(np.asarray(v, dtype=float), (3,)).copy()
 
 
+def _masking(lam_i, lam_o, form):
+    """Smith's shadowing-masking from the two Lambdas: separable or height-correlated."""
+    if form == "separable":
+        return 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
+    if form == "correlated":
+        return 1.0 / (1.0 + lam_i + lam_o)
+    raise ValueError(f"unknown masking {form!r}")
+
+
 @dataclass(frozen=True)
 class Lambertian:
     albedo: tuple = (0.8, 0.8, 0.8)
@@ -47,6 +56,7 @@ class GGX:
     roughness: float = 0.1  # GGX alpha
     f0: tuple = (0.04, 0.04, 0.04)
     kd: tuple = (0.2, 0.2, 0.2)
+    masking: str = "separable"  # or "correlated": height-correlated Smith, 1 / (1 + L_i + L_o)
 
     def __call__(self, wi, wo):
         wi, wo = np.asarray(wi, float), np.asarray(wo, float)
@@ -62,11 +72,17 @@ class GGX:
             t2 = (1.0 - c * c) / (c * c)
             return 2.0 / (1.0 + np.sqrt(1.0 + a2 * t2))
 
+        def lam(c):  # Smith's Lambda for GGX
+            t2 = (1.0 - c * c) / (c * c)
+            return 0.5 * (np.sqrt(1.0 + a2 * t2) - 1.0)
+
         cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
         schlick = (1.0 - cd) ** 5
         f0 = _rgb(self.f0).reshape((3,) + (1,) * ch.ndim)
         fres = f0 + (1.0 - f0) * schlick
-        spec = fres * (d * g1(ci) * g1(co) / (4.0 * ci * co))
+        # The separable form as g1 g1 (the sample tables' bytes); the same value as _masking's.
+        g = g1(ci) * g1(co) if self.masking == "separable" else _masking(lam(ci), lam(co), self.masking)
+        spec = fres * (d * g / (4.0 * ci * co))
         return _rgb(self.kd).reshape((3,) + (1,) * ch.ndim) / np.pi + spec
 
 
@@ -78,6 +94,7 @@ class Beckmann:
     roughness: float = 0.1  # Beckmann m
     f0: tuple = (1.0, 1.0, 1.0)
     kd: tuple = (0.0, 0.0, 0.0)
+    masking: str = "separable"  # or "correlated" (height-correlated Smith, exact Lambda)
 
     def __call__(self, wi, wo):
         wi, wo = np.asarray(wi, float), np.asarray(wo, float)
@@ -93,8 +110,35 @@ class Beckmann:
             a = c / (self.roughness * np.sqrt(np.maximum(1.0 - c * c, 1e-300)))
             return np.where(a < 1.6, (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a), 1.0)
 
+        def lam(c):  # Smith's exact Lambda for Beckmann
+            from scipy.special import erf
+
+            a = c / (self.roughness * np.sqrt(np.maximum(1.0 - c * c, 1e-300)))
+            return 0.5 * (erf(a) - 1.0) + np.exp(-a * a) / (2.0 * a * np.sqrt(np.pi))
+
         cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
         f0 = _rgb(self.f0).reshape((3,) + (1,) * ch.ndim)
         fres = f0 + (1.0 - f0) * (1.0 - cd) ** 5
-        spec = fres * (d * g1(ci) * g1(co) / (4.0 * ci * co))
+        # The separable form keeps Walter et al.'s rational G1 (the sample tables' bytes).
+        g = g1(ci) * g1(co) if self.masking == "separable" else _masking(lam(ci), lam(co), self.masking)
+        spec = fres * (d * g / (4.0 * ci * co))
         return _rgb(self.kd).reshape((3,) + (1,) * ch.ndim) / np.pi + spec
+
+
+@dataclass(frozen=True)
+class BlinnPhong:
+    """Diffuse plus a normalised Blinn-Phong lobe: ks (n+8)/(8 pi) cos^n(theta_h)."""
+
+    kd: tuple = (0.0, 0.0, 0.0)
+    ks: tuple = (1.0, 1.0, 1.0)
+    exponent: float = 200.0
+
+    def __call__(self, wi, wo):
+        wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+        h = wi + wo
+        h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+        ch = np.clip(h[..., 2], 0.0, 1.0)
+        lobe = (self.exponent + 8.0) / (8.0 * np.pi) * ch**self.exponent
+        return (
+            _rgb(self.kd).reshape((3,) + (1,) * ch.ndim) / np.pi + _rgb(self.ks).reshape((3,) + (1,) * ch.ndim) * lobe
+        )

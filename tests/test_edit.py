@@ -176,11 +176,10 @@ def test_a_kept_synthesis_is_reused_only_for_the_same_inputs(glossy):
 
 
 def test_a_superseded_synthesis_stops_between_its_steps_and_keeps_nothing(glossy):
-    """``stop()`` (the live preview's "a newer move came") is asked before every step: once it
-    says so the edit raises ``Superseded`` at once, keeps nothing, and a stop that never fires
-    changes nothing in the table."""
-    from addon.core.edit import Superseded, solve
-    from addon.core.edit.reciprocal import STEPS
+    """``stop()`` (the live preview's "a newer move came") is asked before every step of the
+    roughness solve: once it says so the edit raises ``Superseded`` at once, and a stop that
+    never fires changes nothing in the table."""
+    from addon.core.edit import Superseded
 
     table, prof, fit = glossy
     targets = EditTargets(sigma2=fit["sigma2"] * 0.8)
@@ -193,19 +192,19 @@ def test_a_superseded_synthesis_stops_between_its_steps_and_keeps_nothing(glossy
     plain = edit(table, targets, prof, fit, remeasure=False)
     watched = edit(table, targets, prof, fit, remeasure=False, stop=never)
     np.testing.assert_array_equal(watched.table.rho, plain.table.rho)
-    assert len(asked) >= STEPS  # asked before each step, not only at the end
+    steps = watched.operator["solve_steps"]
+    assert steps >= 2 and len(asked) == steps  # asked before each step, not only at the end
 
-    solve._KEPT.clear()
-    calls = []
+    for k in range(1, steps + 1):
+        calls = []
 
-    def after_two():
-        calls.append(1)
-        return len(calls) > 2
+        def at_k(k=k, calls=calls):
+            calls.append(1)
+            return len(calls) >= k
 
-    with pytest.raises(Superseded):
-        edit(table, targets, prof, fit, remeasure=False, keep=True, stop=after_two)
-    assert len(calls) == 3  # gave up at the third question, not after the remaining steps
-    assert not solve._KEPT
+        with pytest.raises(Superseded):
+            edit(table, targets, prof, fit, remeasure=False, stop=at_k)
+        assert len(calls) == k  # gave up at the k-th question, not after the remaining steps
 
 
 def test_the_live_work_drops_a_superseded_refinement(glossy):

@@ -45,6 +45,7 @@ def _file_loaded(*_args):
 PRELOAD = (
     "..core.edit",
     "..core.edit.fidelity",
+    "..core.edit.scale",
     "..core.fits",
     "..core.merl",
     "..core.nbrdf",

@@ -358,6 +358,9 @@ def report(result, original: Profiles, source=None) -> dict:
             )
         },
         "far": _clean(far_views) if far_views is not None else None,
+        # The roughness edit's parameters (scale, floor, masking form, tilt, clamp); None for
+        # an edit made through the per-view targets.
+        "operator": getattr(result, "operator", None),
         "figures": None if fid is None else {k: (v if isinstance(v, bool) else num(v)) for k, v in fid.items()},
         # A clamp back to the fit changed nothing: that is never a met edit (SPEC §3).
         "meets": bool(fid is not None and fid["meets"] and not result.nothing_to_do),

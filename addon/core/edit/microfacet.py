@@ -102,11 +102,16 @@ class ProjectedArea:
         s, A_s(theta) = (cos theta / cos theta*) A(theta*), tan theta* = s tan theta."""
         c = np.clip(np.asarray(cos_v, float), 0.0, 1.0)
         if s == 1.0:
-            return np.interp(np.arccos(c), self.theta, self.values)
-        sn = np.sqrt(np.maximum(1.0 - c * c, 0.0))
-        r = np.sqrt(c * c + (s * sn) ** 2)  # cos theta / cos theta*
-        theta_star = np.arctan2(s * sn, c)
-        return r * np.interp(theta_star, self.theta, self.values)
+            area = np.interp(np.arccos(c), self.theta, self.values)
+        else:
+            sn = np.sqrt(np.maximum(1.0 - c * c, 0.0))
+            r = np.sqrt(c * c + (s * sn) ** 2)  # cos theta / cos theta*
+            theta_star = np.arctan2(s * sn, c)
+            area = r * np.interp(theta_star, self.theta, self.values)
+        # A microsurface shows at least a flat one's area toward v (Smith's Lambda >= 0): a
+        # reading from a table that is not a microsurface (Phong) can dip below it, and the
+        # height-correlated denominator would then change sign.
+        return np.maximum(area, c)
 
 
 def projected_area(d_centres) -> ProjectedArea:

@@ -101,6 +101,7 @@ def scale_roughness(src: Source, s: float, fade: bool = True) -> tuple[MerlTable
     faded = 0
     if fade:
         spec, faded = _horizon_fade(src, s, spec)
+    spec = np.maximum(np.nan_to_num(spec, nan=0.0, posinf=0.0, neginf=0.0), 0.0)  # finite, nonnegative
     rho = np.where(valid, spec + src.kd[:, None, None, None], 0.0)
     return MerlTable(rho.reshape(3, -1), table.valid.copy(), None), {"faded_cells": int(faded)}
 

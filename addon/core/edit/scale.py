@@ -19,6 +19,7 @@ import numpy as np
 
 from ..fits import fit_material
 from ..profiles import compute_profiles
+from .reciprocal import Superseded
 from .roughness import S_RANGE, Source, scale_roughness
 
 CURVE_SCALES = (0.35, 0.5, 0.7, 0.85, 1.0, 1.2, 1.4, 2.0, 2.8)  # the ladder the curve is drawn on
@@ -68,7 +69,7 @@ def material_curve(src: Source, theta_o, split=True, scales=CURVE_SCALES, stop=N
     mu, s2 = [], []
     for s in scales:
         if stop is not None and stop():
-            raise InterruptedError("superseded")
+            raise Superseded
         table = scale_roughness(src, float(s))[0]
         fit = measure(table, theta_o, split)[1]
         mu.append(np.nan if fit.get("mu_slope") is None else fit["mu_slope"])
@@ -98,7 +99,7 @@ def solve_scale(src: Source, sigma2: float, theta_o, fitted_sigma2: float, split
     best = None
     for step in range(1, SOLVE_STEPS + 1):
         if stop is not None and stop():
-            raise InterruptedError("superseded")
+            raise Superseded
         table, report = scale_roughness(src, s)
         prof, fit = measure(table, theta_o, split)
         got = fit.get("sigma2")

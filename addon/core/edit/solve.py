@@ -41,6 +41,7 @@ class EditResult:
     targets: ViewTargets | None = None  # the per-view promise the table was made for
     announced: tuple = (None, None)  # (mu~, sigma~^2) the targets re-fit to: what the panel showed
     nothing_to_do: bool = False  # the request was clamped back to the fit: no edit was made
+    operator: dict | None = None  # the roughness edit's parameters (scale, floor, masking, tilt)
 
     @property
     def energy_gain(self) -> bool:
@@ -370,6 +371,8 @@ def edit(
     if fit.get("mu_slope") is None or fit.get("sigma2") is None:
         raise ValueError(f"{table.name}: the material has no specular lobe to edit (all its energy is in kd)")
     tell = progress or (lambda done, total: None)
+    if is_roughness_edit(targets):
+        return roughness_edit(table, targets, prof, fit, remeasure=remeasure, tell=tell, stop=stop)
     t0 = time.perf_counter()
     plan = announce(prof, fit, targets, region)
     (mu_t, s2_t), vt, warnings = plan.point, plan.targets, plan.warnings
@@ -423,6 +426,141 @@ def edit(
         reused=kept is not None,
         **said,
     )
+    tell(3, 3)
+    return res
+
+
+def is_roughness_edit(targets: EditTargets) -> bool:
+    """A variance move with the mean slope left to follow it (warp mode): SPEC §3's roughness
+    edit. The energy sliders may move with it; a mean-slope move (the tilt) is not built yet and
+    goes through the per-view targets."""
+    return targets.mode == "warp" and targets.sigma2 is not None and targets.mu_slope is None and not targets.lock
+
+
+# The edit's view of one table (floor, microfacet reading, masking-free values): made once per
+# analysed table and kept (one entry), so the solve's steps and the next edit reuse it.
+_SOURCES: dict = {}
+
+
+def roughness_source(table: MerlTable, prof: Profiles):
+    """``roughness.prepare`` for this table and analysis, kept by content."""
+    import hashlib
+
+    from .roughness import prepare
+
+    h = hashlib.blake2b(digest_size=20)
+    for a in (table.rho, table.valid, np.asarray(prof.kd, float)):
+        a = np.ascontiguousarray(a)
+        h.update(repr((a.dtype.str, a.shape)).encode())
+        h.update(a.data)
+    h.update(repr(prof.split).encode())
+    key = h.hexdigest()
+    if _SOURCES.get("key") != key:
+        kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
+        src = prepare(table, kd, split=prof.split)
+        _SOURCES.clear()
+        _SOURCES.update(key=key, src=src)
+    return _SOURCES["src"]
+
+
+def measured_targets(new_prof: Profiles, mu: float, s2: float) -> ViewTargets:
+    """The per-view promise of a roughness edit: the figures measured on the table it makes
+    (SPEC §3, "the sliders tell the truth"), shape included (shape follows the material)."""
+    from .targets import SHAPE_KEYS, _stack
+
+    st = lambda k: np.nan_to_num(_stack(new_prof, k))  # noqa: E731
+    avg = new_prof["avg"]
+    return ViewTargets(
+        np.asarray(new_prof.theta_o, float),
+        st("alpha"),
+        st("mu_theta"),
+        st("sigma_tt"),
+        st("sigma_pp"),
+        {k: st(k) for k in SHAPE_KEYS},
+        "warp",
+        float(mu),
+        float(s2),
+        np.nan_to_num(np.asarray(avg["mu_theta"], float)),
+        np.nan_to_num(0.5 * (np.asarray(avg["sigma_tt"], float) + np.asarray(avg["sigma_pp"], float))),
+    )
+
+
+def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remeasure=True, tell=None, stop=None):
+    """SPEC §3's variance edit: the roughness scale s whose table re-fits to the requested
+    sigma~^2 (``scale.solve_scale``), the energy sliders on its specular part, and the
+    announcement measured on that table. A request the operator cannot reach ends at the
+    nearest scale it reaches and is reported as clamped."""
+    from .roughness import S_RANGE
+    from .scale import measure as measure_table
+    from .scale import solve_scale
+
+    tell = tell or (lambda done, total: None)
+    mu_r, s2_r, warnings = resolve_targets(targets, fit)
+    t0 = time.perf_counter()
+    src = roughness_source(table, prof)
+    tell(1, 3)
+    t_src = time.perf_counter() - t0
+    with one_thread():
+        sol = solve_scale(src, s2_r, prof.theta_o, float(fit["sigma2"]), split=prof.split, stop=stop)
+    if sol is None:
+        raise ValueError(f"{table.name}: the roughness edit found no lobe in the edited table")
+    out = sol.table
+    gain = targets.strength * np.asarray(targets.colour, float)
+    new_prof, new_fit = sol.profiles, sol.fit
+    if np.any(gain != 1.0):
+        kd = src.kd[:, None]
+        rho = np.where(out.valid, kd + gain[:, None] * np.maximum(out.rho - kd, 0.0), 0.0)
+        out = MerlTable(rho, out.valid.copy(), None)
+        new_prof, new_fit = measure_table(out, prof.theta_o, prof.split)
+    t_syn = time.perf_counter() - t0
+    tell(2, 3)
+    achieved = (new_fit.get("mu_slope"), new_fit.get("sigma2"))
+    clamped = not sol.converged
+    if clamped:
+        edge = "smoother" if s2_r < fit["sigma2"] else "rougher"
+        where = "the table's theta_h cells" if sol.scale <= S_RANGE[0] * 1.001 or s2_r < fit["sigma2"] else "Lambertian"
+        warnings.append(
+            f"variance {s2_r:.4g} is beyond what a {edge} microsurface of this material shows (limit: {where}): "
+            f"the nearest it reaches is {achieved[1]:.4g} (roughness x{sol.scale:.3g})"
+        )
+    vt = measured_targets(new_prof, mu_r, s2_r)
+    albedo = directional_albedo(out, prof.theta_o, ALBEDO_STRIDE).max(axis=0)
+    if np.any(albedo > 1.0):
+        warnings.append(
+            f"the edited material reflects more than it receives (largest directional albedo {albedo.max():.3f} "
+            "> 1): lower its strength"
+        )
+    fid = None
+    if remeasure:
+        reach = np.ones_like(vt.alpha, dtype=bool)
+        fid = measure(new_prof, vt, prof, reachable=reach, tables=(out, table))
+    res = EditResult(
+        out,
+        mu_r,
+        s2_r,
+        achieved[0],
+        achieved[1],
+        albedo,
+        warnings,
+        new_prof,
+        fid,
+        clamped=clamped,
+        requested=(mu_r, s2_r),
+        timings={"synthesis": t_syn, "source": t_src},
+        targets=vt,
+        announced=achieved,
+    )
+    res.operator = {
+        "roughness_scale": float(sol.scale),
+        "floor": [float(v) for v in src.kd],
+        "floor_of_paper": [float(v) for v in src.floor_scale],
+        "masking": src.reading.form,
+        "reading_misfit": float(src.reading.misfit),
+        "tilt": 0.0,
+        "solve_steps": int(sol.steps),
+        "clamped": bool(clamped),
+        "faded_cells": int(sol.report.get("faded_cells", 0)),
+    }
     tell(3, 3)
     return res
 
