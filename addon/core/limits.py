@@ -59,6 +59,7 @@ EDITS_CACHE_MAX_BYTES = 600 << 20
 MAX_ENERGY_SCALE = 16.0  # strength, colour, grazing boost: 16x the measured energy
 MU_SLOPE_RANGE = (-2.0, 0.0)  # the panel's slider: [-1, 0] widened to hold measured slopes
 SIGMA2_RANGE = (1e-8, 0.8224670334241132)  # (0, pi^2/12]: a Lambertian slice's variance
+ROUGHNESS_RANGE = (0.05, 20.0)  # the roughness edit's slope-space scale (core.edit.roughness)
 MAX_CORRELATION_A = 100.0  # |a| of the correlation quadratic; analysed sets give |a| < 2
 
 
@@ -132,6 +133,7 @@ RANGES = {
         Range("grazing_boost", 0.0, MAX_ENERGY_SCALE),
         Range("mu_slope", *MU_SLOPE_RANGE, flag="--mu"),
         Range("sigma2", *SIGMA2_RANGE),
+        Range("roughness", *ROUGHNESS_RANGE, flag="--roughness"),
         Range("correlation_a", -MAX_CORRELATION_A, MAX_CORRELATION_A),
         # the edit engine's other numbers (core/edit), named as in its functions
         Range("albedo_limit", 1e-6, MAX_ENERGY_SCALE, flag="limit"),  # scale_to_albedo's target
@@ -179,7 +181,9 @@ def check_float(value, name, low, high):
 
 # The engine's names for the edit's sliders (core.edit.EditTargets' fields): its errors name
 # the parameter a caller passed, where the command line names its flag and the panel its slider.
-TARGET_FIELDS = {n: n for n in ("strength", "colour", "grazing_boost", "mu_slope", "sigma2", "correlation_a")}
+TARGET_FIELDS = {
+    n: n for n in ("strength", "colour", "grazing_boost", "mu_slope", "sigma2", "roughness", "correlation_a")
+}
 
 
 def check_targets(targets, labels=None):
@@ -198,7 +202,7 @@ def check_targets(targets, labels=None):
     for v in colour:
         one("colour", v)
     one("grazing_boost", targets.grazing_boost)
-    for name in ("mu_slope", "sigma2", "correlation_a"):
+    for name in ("mu_slope", "sigma2", "roughness", "correlation_a"):
         if getattr(targets, name, None) is not None:
             one(name, getattr(targets, name))
     return targets

@@ -169,6 +169,104 @@ def _rgb(text):
         raise argparse.ArgumentTypeError(f"{str(exc).split(': ', 1)[1]} (in {text!r})") from None
 
 
+def _sigma2_arg(text):
+    """--sigma2: an absolute variance, or a factor on the fitted one: x0.5 (also X, *, ×)."""
+    import argparse
+
+    from ..core.limits import RANGES
+
+    t = text.strip()
+    if t[:1] in ("x", "X", "*", "×"):
+        try:
+            v = float(t[1:])
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number after {t[:1]!r}: {text!r}") from None
+        hi = RANGES["strength"].high
+        if not (math.isfinite(v) and 0.0 < v <= hi):
+            raise argparse.ArgumentTypeError(f"a factor must be above 0 and at most {hi:g}, got {text!r}")
+        return ("times", v)
+    return RANGES["sigma2"].parse(t)
+
+
+def _mu_arg(text):
+    """--mu: an absolute mean slope (-2 .. 0), or a move up written with a plus sign (+0.05: a
+    mean slope is never above 0, so a signed plus is never an absolute one)."""
+    t = text.strip()
+    if t.startswith("+"):
+        return _mu_by_arg(t)
+    from ..core.limits import RANGES
+
+    return RANGES["mu_slope"].parse(t)
+
+
+def _mu_by_arg(text):
+    """--mu-by: a signed relative move of the mean slope (-0.05 lowers it)."""
+    import argparse
+
+    from ..core.limits import MU_SLOPE_RANGE
+
+    span = MU_SLOPE_RANGE[1] - MU_SLOPE_RANGE[0]
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(v) and -span <= v <= span):
+        raise argparse.ArgumentTypeError(f"must be within -{span:g} .. +{span:g}, got {text!r}")
+    return ("plus", v)
+
+
+def resolve_moves(args, fit):
+    """(mu_slope, sigma2) as EditTargets takes them, relative moves made absolute on the fit."""
+    mu = args.mu
+    if args.mu_by is not None:
+        mu = args.mu_by
+    if isinstance(mu, tuple):
+        if fit.get("mu_slope") is None:
+            raise InputError(f"{args.file}: the material has no specular lobe to move")
+        mu = fit["mu_slope"] + mu[1]
+    s2 = args.sigma2
+    if isinstance(s2, tuple):
+        if fit.get("sigma2") is None:
+            raise InputError(f"{args.file}: the material has no specular lobe to move")
+        s2 = fit["sigma2"] * s2[1]
+    from ..core.limits import RANGES
+
+    try:
+        if mu is not None:
+            mu = RANGES["mu_slope"].check(mu, "--mu")
+        if s2 is not None:
+            s2 = RANGES["sigma2"].check(s2, "--sigma2")
+    except ValueError as exc:
+        raise InputError(f"{exc} (after the relative move on the fitted value)") from None
+    return mu, s2
+
+
+def _check_written(path, res, prof):
+    """Read the written file back and measure it as the announcement was measured (a fresh
+    analysis): what anyone loading it will see, printed beside what was announced."""
+    import numpy as np
+
+    from ..core.edit.reach import counted_views
+    from ..core.edit.scale import measure
+    from ..core.merl import read_merl
+
+    got_prof, got_fit = measure(read_merl(path), prof.theta_o, prof.split)
+    said, got = res.profiles["avg"], got_prof["avg"]
+    g = lambda P, k: np.nan_to_num(np.asarray(P[k], float))  # noqa: E731
+    use = counted_views(np.asarray(prof.theta_o, float), g(said, "alpha"))[:, 0]
+    var = lambda P: 0.5 * (g(P, "sigma_tt") + g(P, "sigma_pp"))  # noqa: E731
+    with np.errstate(divide="ignore", invalid="ignore"):
+        de = np.abs(g(got, "alpha") / g(said, "alpha") - 1.0)[use]
+        dv = np.abs(var(got) / var(said) - 1.0)[use]
+    dm = np.abs(g(got, "mu_theta") - g(said, "mu_theta"))[use]
+    worst = lambda a: float(np.nanmax(a)) if a.size else float("nan")  # noqa: E731
+    print(
+        f"re-read   mean slope {got_fit['mu_slope']:+.4f}  variance {got_fit['sigma2']:.5f}; per view against the "
+        f"announcement (avg, {int(use.sum())} views): energy {100 * worst(de):.2f} %, variance {100 * worst(dv):.2f} %, "
+        f"mean {worst(dm):.4f} rad (worst)"
+    )
+
+
 def cmd_edit(args):
     from ..core.edit import EditTargets, edit
     from ..core.merl import write_merl
@@ -179,13 +277,20 @@ def cmd_edit(args):
     if args.report:
         _guard(args.report, args.file, args.out)
     table = read_table(args.file)
+    from ..core.fits import fit_material
+    from ..core.profiles import compute_profiles
+
+    prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd; the report compares with it
+    fit = fit_material(prof)
+    mu, s2 = resolve_moves(args, fit)
     colour = args.alpha or (1.0, 1.0, 1.0)
     targets = EditTargets(
         strength=args.alpha_scale if args.alpha_scale is not None else 1.0,
         colour=colour,
         grazing_boost=args.grazing_boost,
-        mu_slope=args.mu,
-        sigma2=args.sigma2,
+        mu_slope=mu,
+        sigma2=s2,
+        roughness=args.roughness,
         mode=args.mode,
     )
     bar, shown = _progress("edit: synthesis"), [0, 0]
@@ -194,11 +299,8 @@ def cmd_edit(args):
         shown[:] = [done, total]
         bar(done, total)
 
-    from ..core.profiles import compute_profiles
-
-    prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd; the report compares with it
     try:
-        res = edit(table, targets, prof, progress=on_round if bar else None)
+        res = edit(table, targets, prof, fit, progress=on_round if bar else None)
     finally:
         if bar and shown[0] < shown[1]:
             sys.stderr.write("\n")  # an error cut the rounds short: end the bar's line before it
@@ -209,7 +311,11 @@ def cmd_edit(args):
 
         write_json_atomic(report(res, prof, table), args.report, (args.file,))
     said = lambda v, fmt: "—" if v is None else format(v, fmt)  # noqa: E731
-    if res.requested is not None:
+    if res.operator is not None:
+        print(
+            f"request   variance {said(res.requested[1], '.5f')} (fitted {fit['sigma2']:.5f}); the mean slope follows"
+        )
+    elif res.requested is not None:
         print(f"request   mean slope {said(res.requested[0], '+.4f')}  variance {said(res.requested[1], '.5f')}")
     print(
         f"announced mean slope {said(res.announced[0], '+.4f')}  variance {said(res.announced[1], '.5f')}"
@@ -234,6 +340,15 @@ def cmd_edit(args):
                 + (f", {len(c.excluded_deg)} out of reach" if c.excluded_deg else "")
                 + ")"
             )
+    if res.operator:
+        _check_written(args.out, res, prof)
+        op = res.operator
+        print(
+            f"operator  roughness x{op['roughness_scale']:.4f}, floor (r, g, b) "
+            + ", ".join(f"{v:.4g}" for v in op["floor"])
+            + f", masking {op['masking']}, tilt {op['tilt']:+.4f}"
+            + (", clamped" if op["clamped"] else "")
+        )
     if res.timings:
         print("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in res.timings.items()))
     for w in res.warnings:
@@ -348,15 +463,24 @@ def build_parser():
         default=1.0,
         help=f"scale of the energy above the base (1, {L.RANGES['grazing_boost'].describe()})",
     )
-    se.add_argument(
+    mu = se.add_mutually_exclusive_group()
+    mu.add_argument(
         "--mu",
-        type=L.RANGES["mu_slope"].parse,
-        help=f"target mean slope ({L.RANGES['mu_slope'].describe()}; the engine keeps it within the material's reach)",
+        type=_mu_arg,
+        help=f"target mean slope ({L.RANGES['mu_slope'].describe()}), or a move up from the fitted one: +0.05",
     )
-    se.add_argument(
+    mu.add_argument("--mu-by", type=_mu_by_arg, help="move the fitted mean slope by D (signed: -0.05 lowers it)")
+    rough = se.add_mutually_exclusive_group()
+    rough.add_argument(
         "--sigma2",
-        type=L.RANGES["sigma2"].parse,
-        help=f"target average variance ({L.RANGES['sigma2'].describe()}, up to pi^2/12)",
+        type=_sigma2_arg,
+        help=f"target average variance ({L.RANGES['sigma2'].describe()}, up to pi^2/12), or a factor on the "
+        "fitted one: x0.5, x2 (a roughness edit: the mean slope follows it)",
+    )
+    rough.add_argument(
+        "--roughness",
+        type=L.RANGES["roughness"].parse,
+        help=f"scale the microsurface's roughness by S directly ({L.RANGES['roughness'].describe()})",
     )
     se.add_argument("--mode", choices=("warp", "model"), default="warp")
     se.add_argument(

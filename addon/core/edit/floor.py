@@ -22,27 +22,17 @@ from . import microfacet as M
 # The search reads every 3rd theta_d row (row 0, the back-scattering one, included) and every
 # 4th phi_d column: 1/12 of the cells.
 SUBSET = (slice(0, None, 3), slice(0, None, 4))
-COARSE = 9  # t on a coarse grid first (the misfit need not be unimodal over [0, 1])
-SEARCH_STEPS = 16  # then golden-section steps around the best: t to 1e-4 of the grid step
+COARSE = 6  # t on a coarse grid first (the misfit need not be unimodal over [0, 1])
+SEARCH_STEPS = 14  # then golden-section steps around the best two grid steps: t to 5e-4
 GOLD = (math.sqrt(5.0) - 1.0) / 2.0
 
 
-def floor_misfit(rho_c, valid_c, kd_c, sub=SUBSET):
-    """The misfit of one channel's rho - kd_c against its microfacet reading (inf: no lobe).
-    rho_c, valid_c: (RES_TH, RES_TD, RES_PD)."""
-    rho_c = rho_c[None]
-    valid_c = valid_c[None]
+def floor_misfit(rho_c, valid_c, kd_c, sub=SUBSET, forms=M.FORMS):
+    """The misfit of one channel's rho - kd_c against its microfacet reading, and the masking
+    form read (inf, None: no lobe). rho_c, valid_c: (RES_TH, RES_TD, RES_PD)."""
     spec = np.maximum(rho_c - kd_c, 0.0) * valid_c
-    r = M.read_microfacets(spec, valid_c, sub=sub)
-    if r is None:
-        return math.inf
-    ci, co = M.cosines(sub)
-    model = (
-        r.fresnel[:, None, sub[0], None]
-        * (r.ndf[:, None, None] / M.gden(ci, co, r.area.at(ci), r.area.at(co), r.form))[None]
-    )
-    part = (slice(None), slice(None), sub[0], sub[1])
-    return M.misfit(np.where(valid_c[part], rho_c[part] - kd_c, 0.0), valid_c[part], model, sub)
+    r = M.read_microfacets(spec[None], valid_c[None], forms=forms, sub=sub, judge=(rho_c - kd_c)[None])
+    return (math.inf, None) if r is None else (r.misfit, r.form)
 
 
 def _golden(f, lo, hi, steps):
@@ -72,18 +62,22 @@ def joint_floor(table, kd_paper):
     for c in range(3):
         if kd_paper[c] <= 0.0:
             continue
+        # The coarse grid reads both masking forms; the search keeps the better one's.
+        grid = np.linspace(0.0, 1.0, COARSE)
+        coarse = [floor_misfit(rho[c], valid[c], t * kd_paper[c]) for t in grid]
+        k = int(np.argmin([m for m, _ in coarse]))
+        form = coarse[k][1]
+        if form is None:
+            continue
         cache = {}
 
-        def f(t, c=c, cache=cache):
+        def f(t, c=c, cache=cache, form=form):
             if t not in cache:
-                cache[t] = floor_misfit(rho[c], valid[c], t * kd_paper[c])
+                cache[t] = floor_misfit(rho[c], valid[c], t * kd_paper[c], forms=(form,))[0]
             return cache[t]
 
-        grid = np.linspace(0.0, 1.0, COARSE)
-        costs = [f(t) for t in grid]
-        k = int(np.argmin(costs))
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, COARSE - 1)]
-        best = min([(costs[k], grid[k]), _golden(f, lo, hi, SEARCH_STEPS)])
+        best = min([(coarse[k][0], grid[k]), _golden(f, lo, hi, SEARCH_STEPS)])
         ts[c] = best[1]
         kd[c] = ts[c] * kd_paper[c]
     return kd, ts

@@ -255,16 +255,43 @@ def misfit(spec, valid, model, sub=_ALL):
     return num / den if den > 0.0 else math.inf
 
 
-def read_microfacets(spec, valid, forms=FORMS, sub=_ALL) -> Reading | None:
+def _area_plan(sub):
+    """Where each cell's two directions fall on the area's angle grid (index, fraction), for
+    the cells ``sub`` picks: the cell cosines are fixed, so the lookup is planned once."""
+    key = ("plan", repr(sub))
+    if key not in _GEOMETRY:
+        plans = []
+        for c in cosines(sub):
+            x = np.arccos(np.clip(c, 0.0, 1.0)) / HALF_PI * (N_AREA - 1)
+            i0 = np.minimum(np.floor(x).astype(np.int32), N_AREA - 2)
+            plans.append((i0, x - i0, c))
+        _GEOMETRY[key] = plans
+    return _GEOMETRY[key]
+
+
+def _areas_at_cells(area, sub):
+    """(A_i, A_o) at every cell of ``sub`` (as ``ProjectedArea.at`` with s = 1, planned)."""
+    v = area.values
+    return [np.maximum(v[i0] * (1.0 - f) + v[i0 + 1] * f, c) for i0, f, c in _area_plan(sub)]
+
+
+def read_microfacets(spec, valid, forms=FORMS, sub=_ALL, judge=None) -> Reading | None:
     """The microfacet reading of a specular table ``spec`` (C, N_CELLS) with mask ``valid``: the
     masking form that fits it better, or None when the table holds no lobe to read. ``sub``
     (theta_d, phi_d slices, the first starting at row 0) reads a subset of the cells, for the
-    floor's search; the NDF is taken from the channel average."""
+    floor's search; the NDF is taken from the channel average. ``judge`` (same shape as spec):
+    what the misfit compares the reading with, if not ``spec`` itself (the floor's search
+    passes rho - kd unclipped)."""
     spec = np.asarray(spec, float).reshape(-1, RES_TH, RES_TD, RES_PD)
     valid = np.asarray(valid, bool).reshape(-1, RES_TH, RES_TD, RES_PD)
     b = _backscatter(spec[:, :, :1, :].mean(axis=0), valid[:, :, :1, :].all(axis=0))
     spec = spec[:, :, sub[0], sub[1]]
     valid = valid[:, :, sub[0], sub[1]]
+    if judge is None:
+        judge = spec
+    else:
+        judge = np.asarray(judge, float).reshape(-1, RES_TH, RES_TD, RES_PD)[:, :, sub[0], sub[1]]
+        judge = np.where(valid, judge, 0.0)
     best = None
     ci, co = cosines(sub)
     for form in forms:
@@ -272,10 +299,11 @@ def read_microfacets(spec, valid, forms=FORMS, sub=_ALL) -> Reading | None:
         if got is None:
             continue
         d, area, _ = got
-        base = d[:, None, None] / gden(ci, co, area.at(ci), area.at(co), form)
+        area_i, area_o = _areas_at_cells(area, sub)
+        base = d[:, None, None] / gden(ci, co, area_i, area_o, form)
         fres = fit_fresnel(spec, valid, base, sub=sub)
         r = Reading(form, d, area, fres, math.inf)
-        r.misfit = misfit(spec, valid, fres[:, None, sub[0], None] * base[None], sub)
+        r.misfit = misfit(judge, valid, fres[:, None, sub[0], None] * base[None], sub)
         if best is None or r.misfit < best.misfit:
             best = r
     return best

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..limits import ROUGHNESS_RANGE
 from ..merl import RES_PD, RES_TD, RES_TH, MerlTable
 from .floor import joint_floor
 from .microfacet import (
@@ -40,7 +41,7 @@ from .microfacet import (
     theta_h_centres,
 )
 
-S_RANGE = (0.05, 20.0)  # the roughness scales the operator takes
+S_RANGE = ROUGHNESS_RANGE  # the roughness scales the operator takes
 FADE_COS = (0.01, 0.06)  # the horizon fade's band in cos of the lower direction (0.6 to 3.4 deg)
 CUBE = (3, RES_TH, RES_TD, RES_PD)
 
@@ -122,6 +123,11 @@ def _horizon_fade(src: Source, s, spec):
         d_ratio = scaled_ndf(r.ndf, s) / np.maximum(r.ndf, 1e-300)
         m_ratio = d_ratio[:, None, None] * (r.gden_cells(1.0) / r.gden_cells(s))
     kept = src.spec * np.nan_to_num(m_ratio, nan=0.0, posinf=0.0)[None]
+    # Where the reading's NDF has (almost) nothing, its growth ratio means nothing (a cell of
+    # rounding noise times 1e300): those theta_h rows keep the operator's own value.
+    trusted = r.ndf > 1e-6 * float(r.ndf.max(initial=0.0))
+    w = np.where(trusted[:, None, None], w, 1.0)
+    near = w < 1.0
     out = np.where(near[None], w[None] * spec + (1.0 - w[None]) * kept, spec)
     # No cell in the band rises above the edited lobe's own peak (taken away from the band):
     # where the reading's NDF is near zero its growth ratio is meaningless.

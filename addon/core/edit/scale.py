@@ -88,6 +88,13 @@ class ScaleSolution:
     report: dict
 
 
+def at_scale(src: Source, s: float, theta_o, split=True) -> ScaleSolution:
+    """The table at a roughness scale asked for directly, and its measurement."""
+    table, report = scale_roughness(src, float(s))
+    prof, fit = measure(table, theta_o, split)
+    return ScaleSolution(float(s), table, prof, fit, 1, True, report)
+
+
 def solve_scale(src: Source, sigma2: float, theta_o, fitted_sigma2: float, split=True, start=None, stop=None):
     """The roughness scale whose table re-fits to ``sigma2``; a ``ScaleSolution`` carrying that
     table and its measurement. ``start``: a first guess (the curve's); ``fitted_sigma2`` is the

@@ -434,7 +434,8 @@ def is_roughness_edit(targets: EditTargets) -> bool:
     """A variance move with the mean slope left to follow it (warp mode): SPEC §3's roughness
     edit. The energy sliders may move with it; a mean-slope move (the tilt) is not built yet and
     goes through the per-view targets."""
-    return targets.mode == "warp" and targets.sigma2 is not None and targets.mu_slope is None and not targets.lock
+    moved = targets.sigma2 is not None or targets.roughness is not None
+    return targets.mode == "warp" and moved and targets.mu_slope is None and not targets.lock
 
 
 # The edit's view of one table (floor, microfacet reading, masking-free values): made once per
@@ -491,8 +492,8 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
     announcement measured on that table. A request the operator cannot reach ends at the
     nearest scale it reaches and is reported as clamped."""
     from .roughness import S_RANGE
+    from .scale import at_scale, solve_scale
     from .scale import measure as measure_table
-    from .scale import solve_scale
 
     tell = tell or (lambda done, total: None)
     mu_r, s2_r, warnings = resolve_targets(targets, fit)
@@ -501,7 +502,11 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
     tell(1, 3)
     t_src = time.perf_counter() - t0
     with one_thread():
-        sol = solve_scale(src, s2_r, prof.theta_o, float(fit["sigma2"]), split=prof.split, stop=stop)
+        if targets.roughness is not None:
+            sol = at_scale(src, targets.roughness, prof.theta_o, prof.split)
+            s2_r = sol.fit.get("sigma2") or s2_r  # a scale asked for directly: its variance is the request
+        else:
+            sol = solve_scale(src, s2_r, prof.theta_o, float(fit["sigma2"]), split=prof.split, stop=stop)
     if sol is None:
         raise ValueError(f"{table.name}: the roughness edit found no lobe in the edited table")
     out = sol.table

@@ -32,6 +32,7 @@ class EditTargets:
     mode: str = "warp"
     lock: bool = False  # sigma2 follows mu_slope along the correlation quadratic
     correlation_a: float | None = None  # the quadratic's a (from a set fit); needed with lock
+    roughness: float | None = None  # a roughness scale asked for directly (instead of sigma2)
 
     def is_identity(self) -> bool:
         return (
@@ -41,6 +42,7 @@ class EditTargets:
             and self.grazing_boost == 1.0
             and self.mu_slope is None
             and self.sigma2 is None
+            and self.roughness is None
             and not self.lock
         )
 
@@ -50,6 +52,7 @@ class EditTargets:
             self.mode == "warp"
             and self.mu_slope is None
             and self.sigma2 is None
+            and self.roughness is None
             and not self.lock
             and self.grazing_boost == 1.0
         )
