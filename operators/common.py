@@ -61,10 +61,15 @@ def analysis_work(path, floor="min"):
         regions = {}
         if fit.get("mu_slope") is not None and fit.get("sigma2") is not None:
             from ..addon.core.edit.reach import reachable_region
+            from ..addon.core.edit.scale import roughness_region
 
-            # Once per analysis (0.1-0.2 s each), stored: the panel shows it and says, before
-            # Apply, when the sliders ask for more than a reciprocal table of this material shows.
-            regions = {mode: reachable_region(prof, fit, mode=mode).to_json() for mode in ("warp", "model")}
+            # Once per analysis, stored: the panel shows it and says, before Apply, what the
+            # edit reaches. Warp mode's is the material's curve under roughness edits and the
+            # tilt's reach (a few syntheses); model mode's the paper's sketch (0.1 s).
+            regions = {
+                "warp": roughness_region(table, prof, fit).to_json(),
+                "model": reachable_region(prof, fit, mode="model").to_json(),
+            }
         report_progress(100, 100)
         return table.name, prof, fit, regions
 

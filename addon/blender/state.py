@@ -654,6 +654,18 @@ def horizon_curve(prof, fit, targets, region, point):
 
     if prof is None or fit is None or fit.get("sigma2") is None:
         return None
+    if region is not None and region.curve:
+        # Warp mode: the material's curve under roughness edits (SPEC §3), then the point the
+        # sliders' variance lands on along it (or the tilted point off it).
+        c = region.curve
+        mus = [np.nan if v is None else v for v in c["mu"]]
+        s2s = [np.nan if v is None else v for v in c["sigma2"]]
+        order = np.argsort(np.nan_to_num(np.array(s2s, float), nan=np.inf))
+        mu_pt = point[0] if targets.mu_slope is not None else region.curve_mu(point[1])
+        return (
+            np.append(np.array(mus, float)[order], np.nan if mu_pt is None else mu_pt),
+            np.append(np.array(s2s, float)[order], point[1]),
+        )
     mus, s2s = [], []
     t = dataclasses.replace(targets, lock=False)
     for s2 in list(region.sigma2) + [point[1]]:

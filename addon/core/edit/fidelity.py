@@ -67,6 +67,11 @@ class Fidelity:
     profiles: Profiles
     far: float = float("nan")  # worst judged view's energy moved far from its lobe (``far_energy``)
     far_views: np.ndarray | None = None  # (V,) the same per view (the report writes it)
+    # Whether ``far`` counts toward ``meets``. A roughness edit moves tail energy beyond three
+    # widths as the real rougher material does (a GGX plastic from roughness 0.1 to 0.2: 4.0 %
+    # at the worst view, 2.0 % median, measured on the two analytic tables), so there it is
+    # reported, not judged against the 1 % meant for a warp's stray energy.
+    judge_far: bool = True
 
     def worst(self, figure: str) -> float:
         vals = [getattr(c, figure) for c in self.channels.values()]
@@ -78,7 +83,7 @@ class Fidelity:
         return (
             all(c.meets(tol) for c in self.channels.values())
             and not self.excluded_fraction > MAX_EXCLUDED
-            and not self.far > tol["far"]
+            and not (self.judge_far and self.far > tol["far"])
         )
 
     @property

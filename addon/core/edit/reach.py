@@ -87,6 +87,21 @@ class ReachableRegion:
     sigma2_max: float
     fitted: tuple = (0.0, 0.0)  # the material's (mu~, sigma~^2)
     notes: list = field(default_factory=list)
+    # The material's curve under roughness edits, {"scales", "mu", "sigma2"} (warp mode's
+    # region is built on it: ``scale.roughness_region``); None for the per-view region.
+    curve: dict | None = None
+
+    def curve_mu(self, s2):
+        """The mean slope a roughness edit to variance ``s2`` re-fits to (None without a curve)."""
+        if not self.curve:
+            return None
+        x = np.array([np.nan if v is None else v for v in self.curve["sigma2"]], float)
+        y = np.array([np.nan if v is None else v for v in self.curve["mu"]], float)
+        ok = np.isfinite(x) & np.isfinite(y) & (x > 0)
+        if ok.sum() < 2:
+            return None
+        order = np.argsort(x[ok])
+        return float(np.interp(math.log(max(s2, 1e-300)), np.log(x[ok][order]), y[ok][order]))
 
     def contains(self, mu, s2) -> bool:
         if not (self.sigma2_min <= s2 <= self.sigma2_max):
@@ -126,6 +141,7 @@ class ReachableRegion:
             "sigma2_min": self.sigma2_min,
             "sigma2_max": self.sigma2_max,
             "fitted": list(self.fitted),
+            **({"curve": self.curve} if self.curve else {}),
         }
 
     @classmethod
@@ -153,7 +169,19 @@ class ReachableRegion:
             and 0 < smin <= smax
         ):
             raise ValueError("not a reachable region")
-        return cls(*arrays, smin, smax, fitted)
+        curve = d.get("curve")
+        if curve is not None:
+            try:
+                n_c = len(curve["scales"])
+                if not (2 <= n_c <= 1000 and all(len(curve[k]) == n_c for k in ("mu", "sigma2"))):
+                    raise ValueError
+                for k in ("scales", "mu", "sigma2"):
+                    for v in curve[k]:
+                        if v is not None and not math.isfinite(float(v)):
+                            raise ValueError
+            except (KeyError, TypeError, ValueError):
+                raise ValueError("not a reachable region") from None
+        return cls(*arrays, smin, smax, fitted, curve=curve)
 
     def boundary(self):
         """(mu, sigma2) of the region's outline: up the lower mean-slope edge, down the upper one."""

@@ -22,7 +22,8 @@ from ..profiles import compute_profiles
 from .reciprocal import Superseded
 from .roughness import S_RANGE, Source, scale_roughness
 
-CURVE_SCALES = (0.35, 0.5, 0.7, 0.85, 1.0, 1.2, 1.4, 2.0, 2.8)  # the ladder the curve is drawn on
+CURVE_SCALES = (0.35, 0.6, 1.0, 1.7, 2.9)  # the ladder the curve is drawn on (s = 1: the table itself)
+REGION_TILT = 0.1  # the tilt asked for each way when the region's width in mean slope is measured
 SOLVE_TOLERANCE = 0.002  # relative, on sigma~^2: well inside the 1 % an edit promises
 SOLVE_STEPS = 6
 
@@ -64,14 +65,18 @@ class MaterialCurve:
         return {"scales": clean(self.scales), "mu": clean(self.mu), "sigma2": clean(self.sigma2)}
 
 
-def material_curve(src: Source, theta_o, split=True, scales=CURVE_SCALES, stop=None) -> MaterialCurve:
-    """The material's curve: one synthesis and one re-measure per scale."""
+def material_curve(src: Source, theta_o, split=True, scales=CURVE_SCALES, stop=None, fit1=None) -> MaterialCurve:
+    """The material's curve: one synthesis and one re-measure per scale (``fit1``: the table's
+    own fit, measured as ``measure`` does, stands for s = 1)."""
     mu, s2 = [], []
     for s in scales:
         if stop is not None and stop():
             raise Superseded
-        table = scale_roughness(src, float(s))[0]
-        fit = measure(table, theta_o, split)[1]
+        if s == 1.0 and fit1 is not None:
+            fit = fit1
+        else:
+            table = scale_roughness(src, float(s))[0]
+            fit = measure(table, theta_o, split)[1]
         mu.append(np.nan if fit.get("mu_slope") is None else fit["mu_slope"])
         s2.append(np.nan if fit.get("sigma2") is None else fit["sigma2"])
     return MaterialCurve(np.asarray(scales, float), np.asarray(mu, float), np.asarray(s2, float))
@@ -131,3 +136,36 @@ def solve_scale(src: Source, sigma2: float, theta_o, fitted_sigma2: float, split
     err, sol = best
     sol.converged = err <= SOLVE_TOLERANCE
     return sol
+
+
+def roughness_region(table, prof, fit, src: Source | None = None, stop=None):
+    """Warp mode's reachable region (SPEC §3): the material's curve in sigma~^2, and in mean
+    slope the curve widened by what the tilt reaches each way (measured once, on the table
+    itself, for a tilt of REGION_TILT). Computed once per analysis."""
+    from .reach import ReachableRegion
+    from .solve import roughness_source, tilt_lobes
+
+    if src is None:
+        src = roughness_source(table, prof)
+    own_prof, own_fit = measure(table, prof.theta_o, prof.split)
+    curve = material_curve(src, prof.theta_o, prof.split, stop=stop, fit1=own_fit)
+    reach = []
+    for sign in (-1.0, 1.0):
+        if stop is not None and stop():
+            raise Superseded
+        got = tilt_lobes(table, own_prof, own_fit, sign * REGION_TILT, stop=stop)[2].get("mu_slope")
+        reach.append(0.0 if got is None else abs(got - own_fit["mu_slope"]))
+    ok = curve.usable()
+    order = np.argsort(curve.sigma2[ok])
+    s2, mu = curve.sigma2[ok][order], curve.mu[ok][order]
+    keep = np.concatenate([[True], np.diff(s2) > 0])
+    s2, mu = s2[keep], mu[keep]
+    return ReachableRegion(
+        s2,
+        mu - reach[0],
+        mu + reach[1],
+        float(s2.min()),
+        float(s2.max()),
+        (float(fit["mu_slope"]), float(fit["sigma2"])),
+        curve=curve.to_json(),
+    )

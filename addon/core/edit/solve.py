@@ -309,6 +309,32 @@ class Announcement:
         return self.at_fit and self.energy_kept
 
 
+def _announce_roughness(prof, fit, targets, region):
+    """The panel's instant word on a roughness edit, from the material's curve: the variance
+    asked for and the mean slope the table will re-fit to (on the curve, or tilted off it within
+    the region). The per-view figures come from the synthesis itself (the live draft)."""
+    mu_req = None if targets.mu_slope is None else float(targets.mu_slope)
+    s2 = float(fit["sigma2"]) if targets.sigma2 is None else float(targets.sigma2)
+    warnings = []
+    clamped = False
+    if not region.sigma2_min <= s2 <= region.sigma2_max:
+        warnings.append(
+            f"variance {s2:.4g} lies beyond the material's curve as measured ({region.sigma2_min:.4g} .. "
+            f"{region.sigma2_max:.4g}): Apply solves for it and says what it reached"
+        )
+    mu = region.curve_mu(s2)
+    if mu_req is not None:
+        lo, hi = region.mu_range(s2)
+        mu = float(np.clip(mu_req, lo, hi)) if np.isfinite(lo) else mu_req
+        if abs(mu - mu_req) > 1e-9:
+            clamped = True
+            warnings.append(f"mean slope {mu_req:+.3f} is beyond the tilt's reach at this variance: about {mu:+.3f}")
+    vt = view_targets(prof, fit, EditTargets(), float(fit["mu_slope"]), float(fit["sigma2"]))
+    requested = (mu_req if mu_req is not None else mu, s2)
+    fitted = (float(fit["mu_slope"]), float(fit["sigma2"]))
+    return Announcement(requested, (mu, s2), clamped, (mu, s2), 0.0, vt, warnings, fitted, region, False)
+
+
 def announce(prof: Profiles, fit: dict, targets: EditTargets, region: ReachableRegion | None = None) -> Announcement:
     """Resolve the sliders, clamp them into the region (edits that move mu~ or sigma~^2), make the
     per-view targets and say what they re-fit to and how many judged views are out of reach."""
@@ -316,6 +342,8 @@ def announce(prof: Profiles, fit: dict, targets: EditTargets, region: ReachableR
 
     if fit.get("mu_slope") is None or fit.get("sigma2") is None:
         raise ValueError("the material has no specular lobe to edit (all its energy is in kd)")
+    if is_roughness_edit(targets) and region is not None and region.curve:
+        return _announce_roughness(prof, fit, targets, region)
     mu, s2, warnings = resolve_targets(targets, fit)
     # A request the slider ranges held back is clamped too (it may land on the fit: nothing to do).
     asked_mu = mu if targets.mu_slope is None else float(targets.mu_slope)
@@ -431,11 +459,11 @@ def edit(
 
 
 def is_roughness_edit(targets: EditTargets) -> bool:
-    """A variance move with the mean slope left to follow it (warp mode): SPEC §3's roughness
-    edit. The energy sliders may move with it; a mean-slope move (the tilt) is not built yet and
-    goes through the per-view targets."""
-    moved = targets.sigma2 is not None or targets.roughness is not None
-    return targets.mode == "warp" and moved and targets.mu_slope is None and not targets.lock
+    """A variance or mean-slope move in warp mode: SPEC §3's roughness edit (the mean slope
+    follows the roughness), then the tilt when the mean slope is moved off that curve. The
+    energy sliders may move with them."""
+    moved = targets.sigma2 is not None or targets.roughness is not None or targets.mu_slope is not None
+    return targets.mode == "warp" and moved and not targets.lock
 
 
 # The edit's view of one table (floor, microfacet reading, masking-free values): made once per
@@ -486,6 +514,58 @@ def measured_targets(new_prof: Profiles, mu: float, s2: float) -> ViewTargets:
     )
 
 
+# The tilt moves each view's mean by tilt * theta_o up to TILT_FADE[0], fading to nothing at
+# TILT_FADE[1]: near the horizon a lobe cannot be moved further without crossing it.
+TILT_FADE = (math.radians(70.0), math.radians(89.0))
+
+
+def tilt_lobes(table, prof: Profiles, fit: dict, tilt: float, stop=None):
+    """SPEC §3's mean-slope move off the material's curve: the reciprocal per-view transform
+    (``reciprocal``) asked to move every view's mean by ``tilt`` theta_o (faded near the
+    horizon) and to keep its energy and variance as the table has them. Returns (table,
+    profiles, fit), the last two a fresh analysis of the tilted table."""
+    from .scale import measure as measure_table
+
+    theta = np.asarray(prof.theta_o, float)
+    x = np.clip((theta - TILT_FADE[0]) / (TILT_FADE[1] - TILT_FADE[0]), 0.0, 1.0)
+    shift = tilt * theta * (1.0 - x * x * (3.0 - 2.0 * x))
+    vt = measured_targets(prof, fit["mu_slope"] + tilt, fit["sigma2"])
+    vt.mean = vt.mean + shift[:, None]
+    vt.avg_mean = vt.avg_mean + shift
+    out = synthesize(table, prof, fit, vt, stop=stop)[0]
+    new_prof, new_fit = measure_table(out, prof.theta_o, prof.split)
+    return out, new_prof, new_fit
+
+
+MU_MET = 0.002  # a mean slope this close to the request is met (SPEC §6: within 0.002)
+TILT_LIMIT = 4.0  # the transform is asked for at most this many times the move requested
+
+
+def solve_tilt(table, prof: Profiles, fit: dict, want: float, stop=None):
+    """The tilt whose table re-fits to a mean slope ``want`` away from ``fit``'s: one pass, and
+    one secant correction when the first falls short (a reciprocal transform moves a lobe less
+    than asked: the lobe's image under the swap of the directions holds it to the mirror).
+    Returns (tilt asked, table, profiles, fit) of the pass that came closest."""
+    mu0 = float(fit["mu_slope"])
+    best = None
+    tilt = want
+    for _ in range(2):
+        out, p, f = tilt_lobes(table, prof, fit, tilt, stop=stop)
+        got = f.get("mu_slope")
+        if got is None:
+            break
+        miss = abs(got - mu0 - want)
+        if best is None or miss < best[0]:
+            best = (miss, tilt, out, p, f)
+        moved = got - mu0
+        if miss <= MU_MET or abs(moved) < 1e-6 or moved * want <= 0:
+            break
+        tilt = float(np.clip(tilt * want / moved, -TILT_LIMIT * abs(want), TILT_LIMIT * abs(want)))
+    if best is None:
+        return 0.0, table, prof, fit
+    return best[1], best[2], best[3], best[4]
+
+
 def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remeasure=True, tell=None, stop=None):
     """SPEC §3's variance edit: the roughness scale s whose table re-fits to the requested
     sigma~^2 (``scale.solve_scale``), the energy sliders on its specular part, and the
@@ -497,6 +577,10 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
 
     tell = tell or (lambda done, total: None)
     mu_r, s2_r, warnings = resolve_targets(targets, fit)
+    if targets.mu_slope is not None:
+        # The operator, not the slider's [-1, 0] heuristic, says how far the slope can go.
+        mu_r = float(targets.mu_slope)
+        warnings = [w for w in warnings if not w.startswith("mean slope")]
     t0 = time.perf_counter()
     src = roughness_source(table, prof)
     tell(1, 3)
@@ -505,13 +589,28 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
         if targets.roughness is not None:
             sol = at_scale(src, targets.roughness, prof.theta_o, prof.split)
             s2_r = sol.fit.get("sigma2") or s2_r  # a scale asked for directly: its variance is the request
-        else:
+        elif targets.sigma2 is not None:
             sol = solve_scale(src, s2_r, prof.theta_o, float(fit["sigma2"]), split=prof.split, stop=stop)
+        else:
+            sol = at_scale(src, 1.0, prof.theta_o, prof.split)  # the mean slope alone: the tilt only
     if sol is None:
         raise ValueError(f"{table.name}: the roughness edit found no lobe in the edited table")
     out = sol.table
     gain = targets.strength * np.asarray(targets.colour, float)
     new_prof, new_fit = sol.profiles, sol.fit
+    clamped = False
+    tilt = 0.0
+    if targets.mu_slope is not None and new_fit.get("mu_slope") is not None:
+        want = float(mu_r - new_fit["mu_slope"])
+        if abs(want) > MU_MET:
+            with one_thread():
+                tilt, out, new_prof, new_fit = solve_tilt(out, new_prof, new_fit, want, stop=stop)
+            if abs(new_fit["mu_slope"] - mu_r) > MU_MET:
+                clamped = True
+                warnings.append(
+                    f"mean slope {mu_r:+.4f} is beyond what a reciprocal tilt of this lobe reaches: it re-fits "
+                    f"to {new_fit['mu_slope']:+.4f}"
+                )
     if np.any(gain != 1.0):
         kd = src.kd[:, None]
         rho = np.where(out.valid, kd + gain[:, None] * np.maximum(out.rho - kd, 0.0), 0.0)
@@ -520,8 +619,8 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
     t_syn = time.perf_counter() - t0
     tell(2, 3)
     achieved = (new_fit.get("mu_slope"), new_fit.get("sigma2"))
-    clamped = not sol.converged
-    if clamped:
+    clamped = clamped or not sol.converged
+    if not sol.converged:
         edge = "smoother" if s2_r < fit["sigma2"] else "rougher"
         where = "the table's theta_h cells" if sol.scale <= S_RANGE[0] * 1.001 or s2_r < fit["sigma2"] else "Lambertian"
         warnings.append(
@@ -539,6 +638,7 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
     if remeasure:
         reach = np.ones_like(vt.alpha, dtype=bool)
         fid = measure(new_prof, vt, prof, reachable=reach, tables=(out, table))
+        fid.judge_far = False
     res = EditResult(
         out,
         mu_r,
@@ -561,7 +661,7 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
         "floor_of_paper": [float(v) for v in src.floor_scale],
         "masking": src.reading.form,
         "reading_misfit": float(src.reading.misfit),
-        "tilt": 0.0,
+        "tilt": tilt,
         "solve_steps": int(sol.steps),
         "clamped": bool(clamped),
         "faded_cells": int(sol.report.get("faded_cells", 0)),
