@@ -8,10 +8,12 @@ energy error of 8 %, a median variance ratio error of 44 % and a worst one of 61
 mode at the fitted sliders, energy 29 %, variance 9 % / 17 %).
 """
 
+import math
+
 import numpy as np
 import pytest
 
-from addon.core.edit import EditTargets, edit, reachable_region, view_targets
+from addon.core.edit import EditTargets, edit, view_targets
 from addon.core.edit.fidelity import measure
 from addon.core.fits import fit_material
 from addon.core.geometry import view_centred
@@ -51,15 +53,23 @@ def test_every_view_follows_a_variance_edit(narrowed):
 
 
 @pytest.mark.slow
-def test_fidelity_is_measured_on_the_written_table(glossy, narrowed):
-    """The result's figures are those of re-measuring the table itself (the stick is not the solver)."""
+def test_fidelity_is_measured_on_the_written_table(glossy, narrowed, tmp_path):
+    """The announcement is a measurement of the table the edit writes: the file written, read
+    back and analysed afresh shows it, view by view (the stick is not the solver)."""
+    from addon.core.merl import read_merl, write_merl
+    from addon.core.profiles import compute_profiles
+
     table, prof, fit = glossy
-    vt = view_targets(
-        prof, fit, EditTargets(sigma2=fit["sigma2"] * 0.5), narrowed.target_mu_slope, narrowed.target_sigma2
-    )
-    again = measure(narrowed.table, vt, prof)
+    path = tmp_path / "narrowed.binary"
+    write_merl(narrowed.table, path)
+    back = compute_profiles(read_merl(path), prof.theta_o)
+    reach = np.ones_like(narrowed.targets.alpha, dtype=bool)
+    again = measure(back, narrowed.targets, prof, reachable=reach)
     for ch in "rgb":
-        assert again.channels[ch].variance_worst == pytest.approx(narrowed.fidelity.channels[ch].variance_worst)
+        c = again.channels[ch]
+        assert c.views > 10
+        assert c.energy < 1e-6 and c.variance_worst < 1e-6 and c.mean < 1e-7
+        assert c.variance_worst == pytest.approx(narrowed.fidelity.channels[ch].variance_worst, abs=1e-6)
 
 
 @pytest.mark.slow
@@ -167,34 +177,44 @@ def test_deterministic(glossy):
 
 @pytest.mark.slow
 def test_requests_outside_the_region_are_clamped_and_said_so(glossy):
+    """A mean slope far off the material's curve (a narrow lobe 0.87 off it) is beyond what a
+    reciprocal tilt reaches: the edit goes as far as it can, says so, and announces where it
+    landed (the written table's own fit)."""
     table, prof, fit = glossy
-    region = reachable_region(prof, fit)
-    assert region.contains(fit["mu_slope"], fit["sigma2"])  # the material itself is reachable
-    assert region.sigma2_min < fit["sigma2"] < region.sigma2_max
-    far = EditTargets(mu_slope=-0.2, sigma2=fit["sigma2"] * 0.2)  # a narrow lobe far off the mirror
-    assert not region.contains(-0.2, fit["sigma2"] * 0.2)
-    res = edit(table, far, prof, fit, remeasure=False, region=region)
+    far = EditTargets(mu_slope=-0.2, sigma2=fit["sigma2"] * 0.2)
+    res = edit(table, far, prof, fit)
     assert res.clamped and res.requested == (-0.2, pytest.approx(fit["sigma2"] * 0.2))
-    assert region.contains(res.target_mu_slope, res.target_sigma2)
-    assert any("clamped to the nearest reachable point" in w for w in res.warnings)
+    assert any("beyond what a reciprocal tilt" in w for w in res.warnings)
+    assert res.announced == (res.achieved_mu_slope, res.achieved_sigma2)
+    assert res.achieved_mu_slope < -0.2 - 0.5  # far from the request: nothing pretends otherwise
+    assert abs(res.operator["tilt"]) <= 0.3 + 1e-12
+
+
+@pytest.fixture(scope="module")
+def glossy_region(glossy):
+    from addon.core.edit.scale import roughness_region
+
+    table, prof, fit = glossy
+    return roughness_region(table, prof, fit)
 
 
 @pytest.mark.parametrize("factor", [0.5, 1.25])
-def test_the_draft_goes_most_of_the_way_and_stays_reciprocal(glossy, factor):
-    """The live preview's draft (3 steps on a third of the views) is a table of the same family:
-    reciprocal, deterministic, energy held, and it makes most (70 %) of the variance move the full
-    synthesis makes. Measured on ggx_glossy: median variance-ratio error 0.086 / 0.019 / about 1
-    (draft / full / unedited) at x0.5, 0.048 / 0.044 / 0.114 at x1.25."""
+def test_the_draft_goes_most_of_the_way_and_stays_reciprocal(glossy, glossy_region, factor):
+    """The live preview's draft (one synthesis at the scale the material's curve gives, nothing
+    solved) is the same operator's table: reciprocal, deterministic, and it lands near the
+    request (within 5 % in sigma~^2 with the curve; at least 60 % of the way in log sigma~^2 from
+    the first guess without one, sigma~^2 as s^1.2)."""
+    from addon.core.edit.scale import measure as analyse
+
     table, prof, fit = glossy
     t = EditTargets(sigma2=fit["sigma2"] * factor)
-    draft = edit(table, t, prof, fit, draft=True)
-    full = edit(table, t, prof, fit)
-    vt = view_targets(prof, fit, t, draft.target_mu_slope, draft.target_sigma2)
-    unedited = measure(table, vt, prof)
-    before, made = unedited.worst("variance_median"), full.fidelity.worst("variance_median")
-    assert before - draft.fidelity.worst("variance_median") >= 0.7 * (before - made)
-    assert draft.fidelity.worst("energy") < 0.05
-    again = edit(table, t, prof, fit, draft=True, remeasure=False).table.rho
+    draft = edit(table, t, prof, fit, draft=True, region=glossy_region)
+    got = analyse(draft.table, prof.theta_o)[1]["sigma2"]
+    assert got == pytest.approx(t.sigma2, rel=0.05)
+    bare = edit(table, t, prof, fit, draft=True)
+    got_bare = analyse(bare.table, prof.theta_o)[1]["sigma2"]
+    assert math.log(got_bare / fit["sigma2"]) / math.log(factor) > 0.6
+    again = edit(table, t, prof, fit, draft=True, region=glossy_region).table.rho
     np.testing.assert_array_equal(again, draft.table.rho)
     rng = np.random.default_rng(11)
     wi = view_centred(rng.uniform(-1.4, 1.4, 2000), rng.uniform(-1.4, 1.4, 2000))

@@ -23,7 +23,7 @@ from . import microfacet as M
 # 4th phi_d column: 1/12 of the cells.
 SUBSET = (slice(0, None, 3), slice(0, None, 4))
 COARSE = 6  # t on a coarse grid first (the misfit need not be unimodal over [0, 1])
-SEARCH_STEPS = 14  # then golden-section steps around the best two grid steps: t to 5e-4
+SEARCH_STEPS = 20  # then golden-section steps around the best two grid steps: t to 3e-5
 GOLD = (math.sqrt(5.0) - 1.0) / 2.0
 
 

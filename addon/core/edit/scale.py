@@ -26,6 +26,14 @@ CURVE_SCALES = (0.35, 0.6, 1.0, 1.7, 2.9)  # the ladder the curve is drawn on (s
 REGION_TILT = 0.1  # the tilt asked for each way when the region's width in mean slope is measured
 SOLVE_TOLERANCE = 0.002  # relative, on sigma~^2: well inside the 1 % an edit promises
 SOLVE_STEPS = 6
+# Without the material's curve, the first guess: sigma~^2 grows about as s^1.2 on microfacet
+# tables (ggx_glossy: s 0.577 halves it, s 1.98 doubles it), not as s^2 (the horizon and
+# masking clip the widening lobe).
+GUESS_EXPONENT = 1.2
+
+
+def first_guess(sigma2: float, fitted_sigma2: float) -> float:
+    return (sigma2 / fitted_sigma2) ** (1.0 / GUESS_EXPONENT)
 
 
 def measure(table, theta_o, split=True):
@@ -107,7 +115,7 @@ def solve_scale(src: Source, sigma2: float, theta_o, fitted_sigma2: float, split
     lo, hi = S_RANGE
     target = math.log(sigma2)
     pts = [(0.0, math.log(fitted_sigma2))]  # (log s, log sigma~^2)
-    s = float(np.clip(start if start is not None else math.sqrt(sigma2 / fitted_sigma2), lo, hi))
+    s = float(np.clip(start if start is not None else first_guess(sigma2, fitted_sigma2), lo, hi))
     best = None
     for step in range(1, SOLVE_STEPS + 1):
         if stop is not None and stop():

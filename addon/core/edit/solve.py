@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -400,7 +401,9 @@ def edit(
         raise ValueError(f"{table.name}: the material has no specular lobe to edit (all its energy is in kd)")
     tell = progress or (lambda done, total: None)
     if is_roughness_edit(targets):
-        return roughness_edit(table, targets, prof, fit, remeasure=remeasure, tell=tell, stop=stop)
+        if draft:
+            return roughness_draft(table, targets, prof, fit, region)
+        return roughness_edit(table, targets, prof, fit, remeasure=remeasure, tell=tell, stop=stop, keep=keep)
     t0 = time.perf_counter()
     plan = announce(prof, fit, targets, region)
     (mu_t, s2_t), vt, warnings = plan.point, plan.targets, plan.warnings
@@ -539,6 +542,7 @@ def tilt_lobes(table, prof: Profiles, fit: dict, tilt: float, stop=None):
 
 MU_MET = 0.002  # a mean slope this close to the request is met (SPEC §6: within 0.002)
 TILT_LIMIT = 4.0  # the transform is asked for at most this many times the move requested
+TILT_MAX = 0.3  # and never for more than this: beyond, the per-view solve pushes cells to the horizon
 
 
 def solve_tilt(table, prof: Profiles, fit: dict, want: float, stop=None):
@@ -548,7 +552,7 @@ def solve_tilt(table, prof: Profiles, fit: dict, want: float, stop=None):
     Returns (tilt asked, table, profiles, fit) of the pass that came closest."""
     mu0 = float(fit["mu_slope"])
     best = None
-    tilt = want
+    tilt = float(np.clip(want, -TILT_MAX, TILT_MAX))
     for _ in range(2):
         out, p, f = tilt_lobes(table, prof, fit, tilt, stop=stop)
         got = f.get("mu_slope")
@@ -560,13 +564,16 @@ def solve_tilt(table, prof: Profiles, fit: dict, want: float, stop=None):
         moved = got - mu0
         if miss <= MU_MET or abs(moved) < 1e-6 or moved * want <= 0:
             break
-        tilt = float(np.clip(tilt * want / moved, -TILT_LIMIT * abs(want), TILT_LIMIT * abs(want)))
+        lim = min(TILT_LIMIT * abs(want), TILT_MAX)
+        tilt = float(np.clip(tilt * want / moved, -lim, lim))
     if best is None:
         return 0.0, table, prof, fit
     return best[1], best[2], best[3], best[4]
 
 
-def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remeasure=True, tell=None, stop=None):
+def roughness_edit(
+    table, targets: EditTargets, prof: Profiles, fit: dict, remeasure=True, tell=None, stop=None, keep=False
+):
     """SPEC §3's variance edit: the roughness scale s whose table re-fits to the requested
     sigma~^2 (``scale.solve_scale``), the energy sliders on its specular part, and the
     announcement measured on that table. A request the operator cannot reach ends at the
@@ -577,14 +584,19 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
 
     tell = tell or (lambda done, total: None)
     mu_r, s2_r, warnings = resolve_targets(targets, fit)
-    if targets.mu_slope is not None:
-        # The operator, not the slider's [-1, 0] heuristic, says how far the slope can go.
-        mu_r = float(targets.mu_slope)
-        warnings = [w for w in warnings if not w.startswith("mean slope")]
     t0 = time.perf_counter()
     src = roughness_source(table, prof)
     tell(1, 3)
     t_src = time.perf_counter() - t0
+    key = (_SOURCES.get("key"), repr(targets)) if keep else None
+    kept = _KEPT.get(key) if key is not None else None
+    if kept is not None:
+        res = dataclasses.replace(kept, table=kept.table.copy(), warnings=list(kept.warnings), reused=True)
+        if remeasure and res.fidelity is None:
+            res.fidelity = measure(res.profiles, res.targets, prof, reachable=np.ones_like(res.targets.alpha, bool))
+            res.fidelity.judge_far = False
+        tell(3, 3)
+        return res
     with one_thread():
         if targets.roughness is not None:
             sol = at_scale(src, targets.roughness, prof.theta_o, prof.split)
@@ -655,6 +667,9 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
         targets=vt,
         announced=achieved,
     )
+    note = _roughness_energy_note(new_prof, prof)
+    if note:
+        warnings.append(note)
     res.operator = {
         "roughness_scale": float(sol.scale),
         "floor": [float(v) for v in src.kd],
@@ -666,8 +681,66 @@ def roughness_edit(table, targets: EditTargets, prof: Profiles, fit: dict, remea
         "clamped": bool(clamped),
         "faded_cells": int(sol.report.get("faded_cells", 0)),
     }
+    if key is not None:
+        _KEPT.clear()
+        _KEPT[key] = dataclasses.replace(res, table=res.table.copy(), warnings=list(res.warnings))
     tell(3, 3)
     return res
+
+
+def roughness_draft(table, targets: EditTargets, prof: Profiles, fit: dict, region=None) -> EditResult:
+    """The live preview's first image of a roughness edit: one synthesis at the scale the
+    material's curve gives for the request (no solve, no tilt, nothing measured); the full edit
+    follows it."""
+    from .roughness import S_RANGE, scale_roughness
+    from .scale import first_guess
+
+    mu_r, s2_r, warnings = resolve_targets(targets, fit)
+    src = roughness_source(table, prof)
+    if targets.roughness is not None:
+        s = float(targets.roughness)
+    elif targets.sigma2 is not None:
+        curve = region.curve if region is not None else None
+        if curve:
+            from .scale import MaterialCurve
+
+            c = MaterialCurve(
+                *(np.array([np.nan if v is None else v for v in curve[k]], float) for k in ("scales", "mu", "sigma2"))
+            )
+            s = c.scale_for(s2_r) if c.usable().sum() >= 2 else first_guess(s2_r, fit["sigma2"])
+        else:
+            s = first_guess(s2_r, fit["sigma2"])
+    else:
+        s = 1.0
+    s = float(np.clip(s, *S_RANGE))
+    out = scale_roughness(src, s)[0]
+    gain = targets.strength * np.asarray(targets.colour, float)
+    if np.any(gain != 1.0):
+        kd = src.kd[:, None]
+        out = MerlTable(
+            np.where(out.valid, kd + gain[:, None] * np.maximum(out.rho - kd, 0.0), 0.0), out.valid.copy(), None
+        )
+    return EditResult(out, mu_r, s2_r, None, None, np.full(3, np.nan), warnings, requested=(mu_r, s2_r))
+
+
+def _roughness_energy_note(new_prof: Profiles, prof: Profiles):
+    """A warning naming the views (holding >= 1e-6 of the peak) whose energy a roughness edit
+    changed by more than ENERGY_WARNING: physics (masking, the horizon), said so the artist
+    knows; the announcement carries the new energies."""
+    theta = np.asarray(prof.theta_o, float)
+    got = np.nan_to_num(np.asarray(new_prof["avg"]["alpha"], float))
+    was = np.nan_to_num(np.asarray(prof["avg"]["alpha"], float))
+    use = was > 1e-6 * max(float(was.max(initial=0.0)), 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = np.where(use, np.abs(got / was - 1.0), 0.0)
+    bad = off > ENERGY_WARNING
+    if not bad.any():
+        return None
+    deg = np.degrees(theta[bad])
+    return (
+        f"energy changes with the roughness at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): "
+        f"up to {100 * off.max():.0f} % (masking and the horizon)"
+    )
 
 
 def scale_to_albedo(result: EditResult, limit: float = 1.0) -> EditResult:
