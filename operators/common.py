@@ -61,7 +61,7 @@ def analysis_work(path, floor="min"):
         regions = {}
         if fit.get("mu_slope") is not None and fit.get("sigma2") is not None:
             from ..addon.core.edit.reach import reachable_region
-            from ..addon.core.edit.scale import roughness_region
+            from ..addon.core.edit.solve import roughness_region
 
             # Once per analysis, stored: the panel shows it and says, before Apply, what the
             # edit reaches. Warp mode's is the material's curve under roughness edits and the

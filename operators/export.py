@@ -30,7 +30,13 @@ def _write_png(mat, path, edited):
     if importlib.util.find_spec("matplotlib") is not None:
         from ..addon.tools.plots import plot_profiles
 
-        plot_profiles(prof, path, title=f"{mat.name} ({'edited' if edited else 'measured'})")
+        if edited:
+            # The edited table's profiles (what the edit announced is measured on this table)
+            # over the measured ones they came from.
+            title = f"{mat.name}: edited (thin, per channel; announced = this table's) over measured (grey)"
+            plot_profiles(prof, path, title=title, measured=state.profiles())
+        else:
+            plot_profiles(prof, path, title=f"{mat.name} (measured)")
         return
     # Blender builds whose Python has no matplotlib (Debian's): the panel's own chart.
     from ..addon.blender.state import plot_image

@@ -192,7 +192,7 @@ def test_requests_outside_the_region_are_clamped_and_said_so(glossy):
 
 @pytest.fixture(scope="module")
 def glossy_region(glossy):
-    from addon.core.edit.scale import roughness_region
+    from addon.core.edit.solve import roughness_region
 
     table, prof, fit = glossy
     return roughness_region(table, prof, fit)

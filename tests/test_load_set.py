@@ -159,12 +159,25 @@ def test_load_set_stores_the_files_points_and_correlation_and_draws_them(analyse
     # documented rule: the region, fit, mirror, Lambert and the set, 0.05 of padding).
     region = state.region()
     mu_b, _ = region.boundary()
-    mus = [*mu_b[np.isfinite(mu_b)], region.fitted[0], -1.0, 0.0, state.mu_slope] + [m for _, m, _ in want]
-    s2s = [*region.sigma2, region.fitted[1], LAMBERT_VARIANCE, state.sigma2] + [s for _, _, s in want]
+    mus = [*mu_b[np.isfinite(mu_b)], region.fitted[0], -1.0, 0.0, state.mu_slope]
+    s2s = [*region.sigma2, region.fitted[1], LAMBERT_VARIANCE, state.sigma2]
+    x_lo, x_hi = min(mus) - 0.05, max(mus) + 0.05
+    y_lo, y_hi = math.log10(min(s2s)) - 0.05, math.log10(max(s2s)) + 0.05
+    # A set may widen the axes by half the mean-slope span and one decade of variance each way;
+    # points beyond are left off (and counted in the legend).
+    span = x_hi - x_lo
+    shown = [
+        (n, m, v)
+        for n, m, v in want
+        if x_lo - 0.5 * span <= m <= x_hi + 0.5 * span and y_lo - 1.0 <= math.log10(v) <= y_hi + 1.0
+    ]
+    assert any(n != "ggx_rough" for n, _, _ in shown)  # a dot other than the material itself is checked
+    mus += [m for _, m, _ in shown]
+    s2s += [v for _, _, v in shown]
     ranges = (min(mus) - 0.05, max(mus) + 0.05, math.log10(min(s2s)) - 0.05, math.log10(max(s2s)) + 0.05)
     px = _region_pixels(bpy, mat)
     h, w = px.shape[:2]
-    for name, mu, s2 in want:
+    for name, mu, s2 in shown:
         if name == "ggx_rough":
             continue  # the material itself: its set dot is under the fit's marker
         x, y = _pixel(mu, s2, ranges, w, h)

@@ -308,17 +308,24 @@ def test_slider_drag_updates_the_osl_preview_without_resynthesis(analysed, tmp_p
 
 
 def test_the_reachable_region_is_stored_drawn_and_is_what_apply_clamps_to(analysed):
-    """Analyse stores the material's reachable region (SPEC §3) and draws it; the panel's
-    'Apply will use' point for sliders outside it is the point Apply then clamps to."""
+    """Analyse stores the material's reachable region (SPEC §3: warp mode's is the material's
+    curve under roughness edits, widened by the tilt's reach) and draws it; the panel's 'Apply
+    will use' point for sliders outside it is the point Apply then clamps to."""
     from addon.core.edit import reachable_region
     from addon.core.edit.reach import ReachableRegion
+    from addon.core.edit.solve import roughness_region
 
     bpy, mat, src = analysed
     state = mat.brdf_moments
-    prof = compute_profiles(read_merl(src))
+    table = read_merl(src)
+    prof = compute_profiles(table)
     fit = fit_material(prof)
-    want = reachable_region(prof, fit)  # computed here, independently of the operator
+    want = roughness_region(table, prof, fit)  # computed here, outside the operator
     got = state.region()
+    assert got.curve and len(got.curve["scales"]) == len(want.curve["scales"])
+    # the curve passes through the material itself at s = 1
+    k = got.curve["scales"].index(1.0)
+    assert got.curve["sigma2"][k] == pytest.approx(fit["sigma2"], rel=1e-9)
     assert type(got).__name__ == ReachableRegion.__name__  # the extension's own copy of the class
     np.testing.assert_allclose(got.sigma2, want.sigma2, rtol=1e-12)
     np.testing.assert_allclose(got.mu_min, want.mu_min, rtol=1e-12, equal_nan=True)

@@ -583,8 +583,9 @@ SECTIONS = (
     ("fits", "Fits", draw_fits, set()),
     ("chart", "Chart", draw_chart, set()),
     ("edit", "Edit", draw_edit, set()),
+    # The spheres are the artist's feedback while the sliders move: open, right under them.
+    ("preview", "Preview", draw_preview, set()),
     ("result", "Result", draw_result, set()),
-    ("preview", "Preview", draw_preview, {"DEFAULT_CLOSED"}),
     ("export", "Export", draw_export, {"DEFAULT_CLOSED"}),
     ("details", "Details", draw_details, {"DEFAULT_CLOSED"}),
 )

@@ -447,16 +447,16 @@ def region_plot(
         mus = np.linspace(x_lo, x_hi, 200)
         curve = correlation_curve(mus, correlation_a)
         c.polyline(*px(mus, np.where(curve > 0, curve, np.nan)), CORRELATION_COLOUR, width=1.0 * s, dashed=True)
+    if horizon is not None:  # the material's curve, under the set's dots (a set's materials lie on it)
+        hm, hs = (np.asarray(a, float) for a in horizon)
+        c.polyline(*px(hm[:-1], hs[:-1]), HORIZON_COLOUR, width=1.5 * s)
     if len(shown):  # under the markers: the fit and the sliders stay legible in a dense set
         c.dot(*px(shown[:, 0], shown[:, 1]), SET_COLOUR, radius=2.0 * s, alpha=0.9)
     if slider and used and (abs(slider[0] - used[0]) > 1e-9 or abs(slider[1] - used[1]) > 1e-12):
         c.polyline(*px([slider[0], used[0]], [slider[1], used[1]]), CLAMP_COLOUR, width=1.0 * s)
         c.dot(*px(used[0], used[1]), CLAMP_COLOUR, radius=4.0 * s)
-    if horizon is not None:
-        hm, hs = (np.asarray(a, float) for a in horizon)
-        c.polyline(*px(hm[:-1], hs[:-1]), HORIZON_COLOUR, width=1.5 * s)
-        if np.isfinite(hm[-1]) and np.isfinite(hs[-1]):
-            c.dot(*px(hm[-1:], hs[-1:]), HORIZON_COLOUR, radius=3.5 * s)
+    if horizon is not None and np.isfinite(hm[-1]) and np.isfinite(hs[-1]):
+        c.dot(*px(hm[-1:], hs[-1:]), HORIZON_COLOUR, radius=3.5 * s)
     c.dot(*px(m_fit, s_fit), FIT_COLOUR, radius=4.0 * s)
     if slider:
         x, y = px(slider[0], slider[1])

@@ -446,7 +446,12 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
             return None  # Apply will say which slider is out of range
         if targets.is_energy_only() or targets.is_identity():
             return None
+        from ..core.edit.solve import is_roughness_edit, roughness_point
+
         try:
+            if is_roughness_edit(targets) and region.curve:
+                asked, used, _ = roughness_point(targets, self.fit(), region)  # what Apply does
+                return asked, used
             mu, s2, _ = resolve_targets(targets, self.fit())
         except ValueError:
             return None

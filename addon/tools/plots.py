@@ -27,8 +27,10 @@ def save_figure(fig, path, dpi=110):
         fig.savefig(tmp, dpi=dpi, format="png")
 
 
-def plot_profiles(prof, path, title=None):
-    """One figure: energy, mean, variances, skewness, excess kurtosis against theta_o."""
+def plot_profiles(prof, path, title=None, measured=None):
+    """One figure: energy, mean, variances, skewness, excess kurtosis against theta_o.
+    ``measured``: the source's profiles, drawn beneath as thick grey lines (channel average), so
+    an edited table's profiles read against what they came from."""
     plt, fig, axes = _figure(2, 3, (13, 7.5))
     deg = np.degrees(prof.theta_o)
     panels = [
@@ -45,6 +47,17 @@ def plot_profiles(prof, path, title=None):
     ]
     for ax, (_, series, label, unit) in zip(axes.flat, panels):
         drawn = False
+        if measured is not None:
+            for key, style in series:
+                if key in measured["avg"]:
+                    ax.plot(
+                        np.degrees(measured.theta_o),
+                        measured["avg"][key],
+                        style,
+                        color="#b0b0b0",
+                        lw=3.2,
+                        label="measured (avg)" if style == "-" else None,
+                    )
         for ch, (colour, name) in CHANNEL_STYLE.items():
             for key, style in series:
                 if key not in prof[ch]:
@@ -342,6 +355,36 @@ def plot_correlation(fits, correlation, path):
     ax.set_title("Mean–variance correlation (× = outside the paper's model)")
     ax.grid(alpha=0.3)
     _set_legend(fig, ax, len(fits))
+    save_figure(fig, path)
+    plt.close(fig)
+    return path
+
+
+def plot_material_curves(curves, correlation, path):
+    """Where roughness edits take each material in the (mu~, sigma~^2) plane: one line per
+    material through its fitted point (dot), over the paper's correlation quadratic fitted to
+    the same materials' own points."""
+    from ..core.fits import LAMBERT_VARIANCE, correlation_curve
+
+    plt, fig, axes = _figure(1, 1, (8.0, 6.0))
+    ax = axes[0, 0]
+    for name in sorted(curves):
+        mu, s2, fitted = curves[name]
+        line = ax.plot(mu, s2, "-", lw=1.0, alpha=0.75)
+        ax.plot([fitted[0]], [fitted[1]], "o", ms=3.5, color=line[0].get_color())
+    if correlation and correlation.get("a") is not None:
+        m = np.linspace(-1.3, 0, 300)
+        c = correlation_curve(m, correlation["a"])
+        ax.plot(
+            m, np.where(c > 0, c, np.nan), "k--", lw=1.6, label=f"the paper's quadratic, a = {correlation['a']:.3f}"
+        )
+    ax.plot([-1, 0], [0, LAMBERT_VARIANCE], "ks", ms=7, mfc="none", label="mirror (−1, 0), Lambertian (0, π²/12)")
+    ax.set_yscale("log")
+    ax.set_xlabel("mean slope μ̃")
+    ax.set_ylabel("average variance σ̃² (rad², log)")
+    ax.set_title(f"{len(curves)} measured materials under roughness edits (×0.5 … ×2 in σ̃²; dot: as measured)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="lower right", fontsize=8)
     save_figure(fig, path)
     plt.close(fig)
     return path

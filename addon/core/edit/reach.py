@@ -88,7 +88,7 @@ class ReachableRegion:
     fitted: tuple = (0.0, 0.0)  # the material's (mu~, sigma~^2)
     notes: list = field(default_factory=list)
     # The material's curve under roughness edits, {"scales", "mu", "sigma2"} (warp mode's
-    # region is built on it: ``scale.roughness_region``); None for the per-view region.
+    # region is built on it: ``solve.roughness_region``); None for the per-view region.
     curve: dict | None = None
 
     def curve_mu(self, s2):

@@ -20,10 +20,12 @@ import numpy as np
 from ..fits import fit_material
 from ..profiles import compute_profiles
 from .reciprocal import Superseded
-from .roughness import S_RANGE, Source, scale_roughness
+from .roughness import S_RANGE, Source, prepare, scale_roughness
 
-CURVE_SCALES = (0.35, 0.6, 1.0, 1.7, 2.9)  # the ladder the curve is drawn on (s = 1: the table itself)
-REGION_TILT = 0.1  # the tilt asked for each way when the region's width in mean slope is measured
+# The ladder the curve is drawn on (s = 1: the table itself); its ends are the region's: 0.15 is
+# about where a narrow measured lobe meets the table's theta_h cells, 6 where a lobe is near
+# Lambertian. A request beyond them is clamped to them.
+CURVE_SCALES = (0.15, 0.4, 1.0, 2.5, 6.0)
 SOLVE_TOLERANCE = 0.002  # relative, on sigma~^2: well inside the 1 % an edit promises
 SOLVE_STEPS = 6
 # Without the material's curve, the first guess: sigma~^2 grows about as s^1.2 on microfacet
@@ -146,34 +148,30 @@ def solve_scale(src: Source, sigma2: float, theta_o, fitted_sigma2: float, split
     return sol
 
 
-def roughness_region(table, prof, fit, src: Source | None = None, stop=None):
-    """Warp mode's reachable region (SPEC §3): the material's curve in sigma~^2, and in mean
-    slope the curve widened by what the tilt reaches each way (measured once, on the table
-    itself, for a tilt of REGION_TILT). Computed once per analysis."""
-    from .reach import ReachableRegion
-    from .solve import roughness_source, tilt_lobes
+# The edit's view of one table (floor, microfacet reading, masking-free values): made once per
+# analysed table and kept (one entry), so the solve's steps and the next edit reuse it.
+_SOURCES: dict = {}
 
-    if src is None:
-        src = roughness_source(table, prof)
-    own_prof, own_fit = measure(table, prof.theta_o, prof.split)
-    curve = material_curve(src, prof.theta_o, prof.split, stop=stop, fit1=own_fit)
-    reach = []
-    for sign in (-1.0, 1.0):
-        if stop is not None and stop():
-            raise Superseded
-        got = tilt_lobes(table, own_prof, own_fit, sign * REGION_TILT, stop=stop)[2].get("mu_slope")
-        reach.append(0.0 if got is None else abs(got - own_fit["mu_slope"]))
-    ok = curve.usable()
-    order = np.argsort(curve.sigma2[ok])
-    s2, mu = curve.sigma2[ok][order], curve.mu[ok][order]
-    keep = np.concatenate([[True], np.diff(s2) > 0])
-    s2, mu = s2[keep], mu[keep]
-    return ReachableRegion(
-        s2,
-        mu - reach[0],
-        mu + reach[1],
-        float(s2.min()),
-        float(s2.max()),
-        (float(fit["mu_slope"]), float(fit["sigma2"])),
-        curve=curve.to_json(),
-    )
+
+def roughness_source(table, prof):
+    """``roughness.prepare`` for this table and analysis, kept by content."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=20)
+    for a in (table.rho, table.valid, np.asarray(prof.kd, float)):
+        a = np.ascontiguousarray(a)
+        h.update(repr((a.dtype.str, a.shape)).encode())
+        h.update(a.data)
+    h.update(repr(prof.split).encode())
+    key = h.hexdigest()
+    if _SOURCES.get("key") != key:
+        kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
+        src = prepare(table, kd, split=prof.split)
+        _SOURCES.clear()
+        _SOURCES.update(key=key, src=src)
+    return _SOURCES["src"]
+
+
+def source_key():
+    """The content key of the table ``roughness_source`` holds now (None before any)."""
+    return _SOURCES.get("key")

@@ -20,6 +20,7 @@ from ..profiles import Profiles, compute_profiles
 from . import reciprocal as R
 from .fidelity import Fidelity, measure
 from .reach import ReachableRegion, reachable_region
+from .scale import roughness_source, source_key
 from .targets import EditTargets, ViewTargets, announced, resolve_targets, view_targets
 
 
@@ -256,7 +257,7 @@ def _finish(out, mu_t, s2_t, warnings, prof, remeasure, vt=None, draft=False, **
     if np.any(albedo > 1.0):
         warnings.append(
             f"the edited material reflects more than it receives (largest directional albedo "
-            f"{albedo.max():.3f} > 1); scale it down with scale_to_albedo"
+            f"{albedo.max():.3f} > 1): lower its Strength"
         )
     achieved_mu = achieved_s2 = None
     new_prof = fid = None
@@ -313,27 +314,12 @@ class Announcement:
 def _announce_roughness(prof, fit, targets, region):
     """The panel's instant word on a roughness edit, from the material's curve: the variance
     asked for and the mean slope the table will re-fit to (on the curve, or tilted off it within
-    the region). The per-view figures come from the synthesis itself (the live draft)."""
-    mu_req = None if targets.mu_slope is None else float(targets.mu_slope)
-    s2 = float(fit["sigma2"]) if targets.sigma2 is None else float(targets.sigma2)
-    warnings = []
-    clamped = False
-    if not region.sigma2_min <= s2 <= region.sigma2_max:
-        warnings.append(
-            f"variance {s2:.4g} lies beyond the material's curve as measured ({region.sigma2_min:.4g} .. "
-            f"{region.sigma2_max:.4g}): Apply solves for it and says what it reached"
-        )
-    mu = region.curve_mu(s2)
-    if mu_req is not None:
-        lo, hi = region.mu_range(s2)
-        mu = float(np.clip(mu_req, lo, hi)) if np.isfinite(lo) else mu_req
-        if abs(mu - mu_req) > 1e-9:
-            clamped = True
-            warnings.append(f"mean slope {mu_req:+.3f} is beyond the tilt's reach at this variance: about {mu:+.3f}")
+    the region), the clamp Apply will make (``roughness_point``). The per-view figures come from
+    the synthesis itself (the live draft, then Apply)."""
+    asked, point, warnings = roughness_point(targets, fit, region)
     vt = view_targets(prof, fit, EditTargets(), float(fit["mu_slope"]), float(fit["sigma2"]))
-    requested = (mu_req if mu_req is not None else mu, s2)
     fitted = (float(fit["mu_slope"]), float(fit["sigma2"]))
-    return Announcement(requested, (mu, s2), clamped, (mu, s2), 0.0, vt, warnings, fitted, region, False)
+    return Announcement(asked, point, asked != point, point, 0.0, vt, warnings, fitted, region, False)
 
 
 def announce(prof: Profiles, fit: dict, targets: EditTargets, region: ReachableRegion | None = None) -> Announcement:
@@ -403,7 +389,9 @@ def edit(
     if is_roughness_edit(targets):
         if draft:
             return roughness_draft(table, targets, prof, fit, region)
-        return roughness_edit(table, targets, prof, fit, remeasure=remeasure, tell=tell, stop=stop, keep=keep)
+        return roughness_edit(
+            table, targets, prof, fit, remeasure=remeasure, tell=tell, stop=stop, keep=keep, region=region
+        )
     t0 = time.perf_counter()
     plan = announce(prof, fit, targets, region)
     (mu_t, s2_t), vt, warnings = plan.point, plan.targets, plan.warnings
@@ -469,32 +457,6 @@ def is_roughness_edit(targets: EditTargets) -> bool:
     return targets.mode == "warp" and moved and not targets.lock
 
 
-# The edit's view of one table (floor, microfacet reading, masking-free values): made once per
-# analysed table and kept (one entry), so the solve's steps and the next edit reuse it.
-_SOURCES: dict = {}
-
-
-def roughness_source(table: MerlTable, prof: Profiles):
-    """``roughness.prepare`` for this table and analysis, kept by content."""
-    import hashlib
-
-    from .roughness import prepare
-
-    h = hashlib.blake2b(digest_size=20)
-    for a in (table.rho, table.valid, np.asarray(prof.kd, float)):
-        a = np.ascontiguousarray(a)
-        h.update(repr((a.dtype.str, a.shape)).encode())
-        h.update(a.data)
-    h.update(repr(prof.split).encode())
-    key = h.hexdigest()
-    if _SOURCES.get("key") != key:
-        kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
-        src = prepare(table, kd, split=prof.split)
-        _SOURCES.clear()
-        _SOURCES.update(key=key, src=src)
-    return _SOURCES["src"]
-
-
 def measured_targets(new_prof: Profiles, mu: float, s2: float) -> ViewTargets:
     """The per-view promise of a roughness edit: the figures measured on the table it makes
     (SPEC §3, "the sliders tell the truth"), shape included (shape follows the material)."""
@@ -536,8 +498,32 @@ def tilt_lobes(table, prof: Profiles, fit: dict, tilt: float, stop=None):
     vt.mean = vt.mean + shift[:, None]
     vt.avg_mean = vt.avg_mean + shift
     out = synthesize(table, prof, fit, vt, stop=stop)[0]
+    out = _cap_horizon_growth(out, table, np.asarray(prof.kd, float) if prof.split else np.zeros(3))
     new_prof, new_fit = measure_table(out, prof.theta_o, prof.split)
     return out, new_prof, new_fit
+
+
+HORIZON_COS = 0.06  # the band near the horizon where a transform may not raise cells beyond the peak
+
+
+def _cap_horizon_growth(out, before, kd):
+    """SPEC §3: near the horizon no cell grows by more than the lobe's peak does. The tilt's
+    factor is largest there (a cell may rise e^3 by the transform's own bound); cells of the band
+    are capped at their value before times the specular peak's growth."""
+    from .microfacet import cell_cosines
+    from .roughness import CUBE
+
+    k = kd[:, None, None, None]
+    new = np.maximum(out.rho.reshape(CUBE) - k, 0.0)
+    old = np.maximum(before.rho.reshape(CUBE) - k, 0.0)
+    ci, co = cell_cosines()
+    band = (np.minimum(ci, co) < HORIZON_COS)[None]
+    peak_new = np.where(band, 0.0, new).reshape(3, -1).max(axis=1)
+    peak_old = np.where(band, 0.0, old).reshape(3, -1).max(axis=1)
+    growth = np.maximum(peak_new / np.maximum(peak_old, 1e-300), 1.0)[:, None, None, None]
+    capped = np.where(band, np.minimum(new, old * growth), new)
+    rho = np.where(out.valid, (capped + k).reshape(3, -1), 0.0)
+    return MerlTable(rho, out.valid.copy(), None)
 
 
 MU_MET = 0.002  # a mean slope this close to the request is met (SPEC §6: within 0.002)
@@ -571,8 +557,37 @@ def solve_tilt(table, prof: Profiles, fit: dict, want: float, stop=None):
     return best[1], best[2], best[3], best[4]
 
 
+def roughness_point(targets: EditTargets, fit: dict, region: ReachableRegion | None):
+    """((mu, sigma2) asked, (mu, sigma2) the edit makes, warnings) of a roughness edit: with a
+    region built on the material's curve, a point outside it goes to its nearest point (the mean
+    slope, when not moved, is the curve's own at that variance); without one, the request."""
+    mu, s2, warnings = resolve_targets(targets, fit)
+    if region is None or not region.curve:
+        return (mu, s2), (mu, s2), warnings
+    on_curve = targets.mu_slope is None and region.curve_mu(s2) is not None
+    if on_curve:
+        mu = region.curve_mu(s2)
+    mu_c, s2_c, moved = region.clamp(mu, s2)
+    if on_curve:
+        mu_c = region.curve_mu(s2_c)
+    if moved:
+        warnings.append(
+            f"mean slope {mu:+.3f} and variance {s2:.4g} lie outside what this material's roughness edit and "
+            f"tilt reach: clamped to the nearest reachable point ({mu_c:+.3f}, {s2_c:.4g})"
+        )
+    return (mu, s2), (mu_c, s2_c), warnings
+
+
 def roughness_edit(
-    table, targets: EditTargets, prof: Profiles, fit: dict, remeasure=True, tell=None, stop=None, keep=False
+    table,
+    targets: EditTargets,
+    prof: Profiles,
+    fit: dict,
+    remeasure=True,
+    tell=None,
+    stop=None,
+    keep=False,
+    region: ReachableRegion | None = None,
 ):
     """SPEC §3's variance edit: the roughness scale s whose table re-fits to the requested
     sigma~^2 (``scale.solve_scale``), the energy sliders on its specular part, and the
@@ -583,12 +598,17 @@ def roughness_edit(
     from .scale import measure as measure_table
 
     tell = tell or (lambda done, total: None)
-    mu_r, s2_r, warnings = resolve_targets(targets, fit)
+    asked, (mu_r, s2_r), warnings = roughness_point(targets, fit, region)
+    region_clamped = asked != (mu_r, s2_r)
+    if region_clamped and targets.sigma2 is not None:
+        targets = dataclasses.replace(targets, sigma2=s2_r)
+    if region_clamped and targets.mu_slope is not None:
+        targets = dataclasses.replace(targets, mu_slope=mu_r)
     t0 = time.perf_counter()
     src = roughness_source(table, prof)
     tell(1, 3)
     t_src = time.perf_counter() - t0
-    key = (_SOURCES.get("key"), repr(targets)) if keep else None
+    key = (source_key(), repr(targets)) if keep else None
     kept = _KEPT.get(key) if key is not None else None
     if kept is not None:
         res = dataclasses.replace(kept, table=kept.table.copy(), warnings=list(kept.warnings), reused=True)
@@ -610,7 +630,7 @@ def roughness_edit(
     out = sol.table
     gain = targets.strength * np.asarray(targets.colour, float)
     new_prof, new_fit = sol.profiles, sol.fit
-    clamped = False
+    clamped = region_clamped
     tilt = 0.0
     if targets.mu_slope is not None and new_fit.get("mu_slope") is not None:
         want = float(mu_r - new_fit["mu_slope"])
@@ -662,7 +682,7 @@ def roughness_edit(
         new_prof,
         fid,
         clamped=clamped,
-        requested=(mu_r, s2_r),
+        requested=asked,
         timings={"synthesis": t_syn, "source": t_src},
         targets=vt,
         announced=achieved,
@@ -762,4 +782,40 @@ def scale_to_albedo(result: EditResult, limit: float = 1.0) -> EditResult:
         warnings=[w for w in result.warnings if "reflects more" not in w],
         fidelity=None,
         timings=dict(result.timings),
+    )
+
+
+REGION_TILT = 0.1  # the tilt asked for each way when the region's width in mean slope is measured
+
+
+def roughness_region(table, prof, fit, src=None, stop=None):
+    """Warp mode's reachable region (SPEC §3): the material's curve in sigma~^2, and in mean
+    slope the curve widened by what the tilt reaches each way (measured once, on the table
+    itself, for a tilt of REGION_TILT). Computed once per analysis."""
+    from .scale import material_curve
+    from .scale import measure as measure_table
+
+    if src is None:
+        src = roughness_source(table, prof)
+    own_prof, own_fit = measure_table(table, prof.theta_o, prof.split)
+    curve = material_curve(src, prof.theta_o, prof.split, stop=stop, fit1=own_fit)
+    reach = []
+    for sign in (-1.0, 1.0):
+        if stop is not None and stop():
+            raise R.Superseded
+        got = tilt_lobes(table, own_prof, own_fit, sign * REGION_TILT, stop=stop)[2].get("mu_slope")
+        reach.append(0.0 if got is None else abs(got - own_fit["mu_slope"]))
+    ok = curve.usable()
+    order = np.argsort(curve.sigma2[ok])
+    s2, mu = curve.sigma2[ok][order], curve.mu[ok][order]
+    keep = np.concatenate([[True], np.diff(s2) > 0])
+    s2, mu = s2[keep], mu[keep]
+    return ReachableRegion(
+        s2,
+        mu - reach[0],
+        mu + reach[1],
+        float(s2.min()),
+        float(s2.max()),
+        (float(fit["mu_slope"]), float(fit["sigma2"])),
+        curve=curve.to_json(),
     )
