@@ -53,10 +53,14 @@ def label_image(rgba, layout, labels):
 
 
 def write_preview_image(mat, rgba):
-    """The preview as a float image (linear radiance; ``rgba`` rows top first), kept in the .blend."""
+    """The preview as a float image (linear radiance; ``rgba`` rows top first), kept in the .blend,
+    and its thumbnail for the panel (an icon of the add-on's own, icons.py)."""
+    from .icons import put_thumbnail
     from .images import keep_image
 
-    return keep_image(preview_image_name(mat), rgba, float_buffer=True)
+    img = keep_image(preview_image_name(mat), rgba, float_buffer=True)
+    put_thumbnail(mat.name, rgba)
+    return img
 
 
 def read_preview_image(mat):
