@@ -78,9 +78,11 @@ def draw_later(name, draw, then=None, now=False):
     return None
 
 
+@lifecycle.on_file_load
 @lifecycle.on_shutdown
 def _drop_all():
-    """Unregister: drawings in flight are superseded and nothing waits to be placed."""
+    """Unregister, or another file is opened: drawings in flight are superseded and nothing
+    waits to be placed."""
     with _DRAW_LOCK:
         for name in list(_DRAW_GEN):
             _DRAW_GEN[name] += 1

@@ -199,10 +199,11 @@ def _start(task):
     lifecycle.register_timer(_apply_posted, first_interval=POLL)
 
 
+@lifecycle.on_file_load
 @lifecycle.on_shutdown
 def _stop_all():
-    """Unregister: every live work in flight becomes stale (it stops at its next stage) and
-    nothing it posted is applied."""
+    """Unregister, or another file is opened: every live work in flight becomes stale (it stops
+    at its next stage) and nothing it posted is applied."""
     for name in list(_GEN):
         _GEN[name] += 1
     with _LOCK:

@@ -22,7 +22,7 @@ import os
 
 import bpy
 
-from . import icons
+from . import icons, lifecycle
 from .live import preview_image_name
 
 # --- measuring ------------------------------------------------------------------------------
@@ -785,6 +785,19 @@ def thumbnail_icon(mat):
 
         register_timer(make, first_interval=0.0)
     return found
+
+
+@lifecycle.on_file_load
+def file_loading():
+    """Before another file is opened: the pictures held describe this file's materials (a
+    material of the same name there may hold other data), so they all go, and nothing drawn
+    for this file is placed in the next."""
+    _WANTED.clear()
+    _DONE.clear()
+    _FAILED.clear()
+    _THUMBS_PENDING.clear()
+    _MEMO.clear()
+    icons.drop()
 
 
 def attach():

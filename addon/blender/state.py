@@ -13,6 +13,7 @@ import numpy as np
 from ..core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
 from ..core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE, MU_SLOPE_RANGE, RANGES
 from ..core.moments import CHANNELS, PROFILE_KEYS
+from . import lifecycle
 from .images import draw_later
 
 MU_MIN, MU_MAX = MU_SLOPE_RANGE  # the declared ranges (core/limits.py), shared with the command line
@@ -525,6 +526,12 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
 
 _ANNOUNCED: dict = {}  # the latest announcement asked for (a newer slider move wins)
+
+
+@lifecycle.on_file_load
+def _drop_announcement():
+    """Another file is opened: the announcement being worked out is for this one's material."""
+    _ANNOUNCED["gen"] = _ANNOUNCED.get("gen", 0) + 1
 
 
 def _announce(raw, fit, targets, region):
