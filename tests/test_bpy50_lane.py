@@ -21,6 +21,7 @@ LANE_TESTS = [
     "tests/test_jobs.py",
     "tests/test_lifecycle.py",
     "tests/test_preview_blender.py",
+    "tests/test_thumbnails.py",
     # the stretched lobes of the artist's material: 5.0's Glossy node renders them as modelled
     "tests/test_artist_material.py::test_stretched_lobes_render_as_the_fit_models_them",
 ]

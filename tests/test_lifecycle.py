@@ -87,3 +87,36 @@ def test_the_timer_book_forgets_timers_that_ran(blender):
     lifecycle.register_timer(last, first_interval=100.0)
     assert [f for f in lifecycle._TIMERS if f in made] == [last]
     blender.app.timers.unregister(last)
+
+
+def test_opening_a_file_ends_the_drawing_threads_first(blender):
+    """load_pre: the threads drawing or baking for the file being left are stopped and joined
+    before Blender replaces it, and the pictures drawn for it dropped; a job's listener and the
+    warm-up (``outlives_file``) go on."""
+    import threading
+
+    import numpy as np
+
+    base = "bl_ext.bmtest.brdf_moments.addon.blender."
+    lifecycle, icons = sys.modules[base + "lifecycle"], sys.modules[base + "icons"]
+    drawing_stop, job_stop = threading.Event(), threading.Event()
+    seen = {}
+
+    def drawing():  # as a chart's or the live preview's thread: ends when asked to stop
+        drawing_stop.wait(60)
+        # (read here only because the main thread is waiting in the join: the file not yet left)
+        seen["scene_when_stopped"] = [s.name for s in blender.data.scenes]
+
+    blender.data.scenes.new("Left behind")
+    drawer = lifecycle.start_thread(drawing, "test: drawing", stop=drawing_stop.set)
+    listener = lifecycle.start_thread(job_stop.wait, "test: job", stop=job_stop.set, args=(60,), outlives_file=True)
+    icons.put(icons.thumbnail_key("Left behind"), np.ones((4, 4, 4), np.float32))
+    try:
+        blender.ops.wm.read_homefile(use_empty=True)
+        assert not drawer.is_alive() and "Left behind" in seen["scene_when_stopped"]
+        assert listener.is_alive()
+        assert icons.icon_id(icons.thumbnail_key("Left behind")) is None
+    finally:
+        job_stop.set()
+        drawing_stop.set()
+        listener.join(5)

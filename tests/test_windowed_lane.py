@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 import pytest
+from _watch import crash_report, run_watched
 
 pytestmark = pytest.mark.blender  # Blender in a window under Xvfb
 
@@ -30,6 +31,9 @@ if not addon_utils.check("brdf_moments")[1]:
     sys.exit("the add-on did not enable")
 print("windowed: installed", {zip!r}, flush=True)
 """
+
+
+TIMEOUT = 1500  # seconds for the whole session (4-8 min here)
 
 
 @pytest.fixture(scope="module")
@@ -54,35 +58,38 @@ def lane(tmp_path_factory):
     shutil.copy(samples.sample_path("gold"), gold)
     shutil.copy(samples.sample_path("ggx_rough"), other)
     out = tmp / "out"
-    env = dict(os.environ, BLENDER_USER_SCRIPTS=str(tmp / "scripts"), BLENDER_USER_CONFIG=str(tmp / "config"))
-    res = subprocess.run(
-        [
-            "xvfb-run",
-            "-a",
-            "-s",
-            "-screen 0 1920x1080x24",
-            "blender",
-            "--factory-startup",
-            "--python-exit-code",
-            "1",
-            "--python-expr",
-            INSTALL.format(zip=legacy),
-            "--python",
-            os.path.join(ROOT, "tests", "windowed", "drive.py"),
-            "--",
-            "--out",
-            str(out),
-            "--gold",
-            str(gold),
-            "--other",
-            str(other),
-        ],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=1500,
+    # Blender's temporary directory (its crash report goes there) is this run's own.
+    crash_dir = tmp / "blender-tmp"
+    crash_dir.mkdir()
+    env = dict(
+        os.environ,
+        BLENDER_USER_SCRIPTS=str(tmp / "scripts"),
+        BLENDER_USER_CONFIG=str(tmp / "config"),
+        TMPDIR=str(crash_dir),
     )
-    log = res.stdout + res.stderr
+    cmd = [
+        "xvfb-run",
+        "-a",
+        "-s",
+        "-screen 0 1920x1080x24",
+        "blender",
+        "--factory-startup",
+        "--python-exit-code",
+        "1",
+        "--python-expr",
+        INSTALL.format(zip=legacy),
+        "--python",
+        os.path.join(ROOT, "tests", "windowed", "drive.py"),
+        "--",
+        "--out",
+        str(out),
+        "--gold",
+        str(gold),
+        "--other",
+        str(other),
+    ]
+    code, why = run_watched(cmd, env, tmp / "blender.log", [out / "faulthandler.txt"], crash_dir, TIMEOUT)
+    log = (tmp / "blender.log").read_text(errors="replace")
     # Kept for a person to look at (git-ignored): what the artist saw at each step.
     shutil.rmtree(ARTIFACTS, ignore_errors=True)
     os.makedirs(ARTIFACTS)
@@ -91,9 +98,13 @@ def lane(tmp_path_factory):
             shutil.copy(out / name, ARTIFACTS)
     with open(os.path.join(ARTIFACTS, "blender.log"), "w") as fh:
         fh.write(log)
-    faults = out / "faulthandler.txt"
-    crash = faults.read_text() if faults.is_file() else ""
-    assert (out / "windowed.json").is_file(), log[-4000:] + "\n" + crash[-6000:]
+    report = crash_report(out / "faulthandler.txt", crash_dir)
+    if report:
+        with open(os.path.join(ARTIFACTS, "crash.txt"), "w") as fh:
+            fh.write(report)
+    if why is not None or not (out / "windowed.json").is_file():
+        why = why or f"exited with code {code} before writing windowed.json"
+        pytest.fail(f"Blender {why}\n{log[-4000:]}\n{report or '(no crash report)'}", pytrace=False)
     data = json.loads((out / "windowed.json").read_text())
     data["steps"] = {s["name"]: s for s in data["steps"]}
     return data, log, str(gold), str(other)

@@ -13,7 +13,7 @@ from . import lifecycle
 
 def keep_image(name, rgba, float_buffer=False):
     """The image ``name`` holding ``rgba`` ((H, W, 4), row 0 on top), kept in the .blend (fake
-    user) with a fresh thumbnail for the panel; made anew when its size or kind changed."""
+    user); made anew when its size or kind changed."""
     h, w = rgba.shape[:2]
     img = bpy.data.images.get(name)
     if img is not None and (tuple(img.size) != (w, h) or bool(img.is_float) != float_buffer):
@@ -24,9 +24,8 @@ def keep_image(name, rgba, float_buffer=False):
     img.pixels.foreach_set(np.ascontiguousarray(rgba[::-1], np.float32).ravel())  # Blender's rows start at the bottom
     img.update()
     img.use_fake_user = True
-    if hasattr(img, "preview_ensure"):
-        img.preview_ensure()
-        img.preview.reload()
+    # No Image.preview: Blender would render it in a job thread from this buffer, which the next
+    # call rewrites or frees (the panel shows icons of its own, see icons.py).
     return img
 
 
@@ -79,9 +78,11 @@ def draw_later(name, draw, then=None, now=False):
     return None
 
 
+@lifecycle.on_file_load
 @lifecycle.on_shutdown
 def _drop_all():
-    """Unregister: drawings in flight are superseded and nothing waits to be placed."""
+    """Unregister, or another file is opened: drawings in flight are superseded and nothing
+    waits to be placed."""
     with _DRAW_LOCK:
         for name in list(_DRAW_GEN):
             _DRAW_GEN[name] += 1

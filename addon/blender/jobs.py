@@ -103,7 +103,7 @@ def warm_up(theta_o):
         return
     from ..core.edit.solve import warm
 
-    lifecycle.start_thread(warm, "brdf_moments: warm-up", args=(list(theta_o),))
+    lifecycle.start_thread(warm, "brdf_moments: warm-up", args=(list(theta_o),), outlives_file=True)
 
 
 # Errors that mean "this input or these sliders cannot be used", reported in one line.
@@ -338,7 +338,7 @@ class BackgroundJob:
             "workspace": context.workspace,
             "started": self._started,
         }
-        self._thread = lifecycle.start_thread(run, f"brdf_moments: {self.job_label}", stop=stop)
+        self._thread = lifecycle.start_thread(run, f"brdf_moments: {self.job_label}", stop=stop, outlives_file=True)
         return {"RUNNING_MODAL"}
 
     def _end(self, context, outcome):

@@ -12,6 +12,9 @@ So every thread and timer the add-on starts goes through here:
   add-on ever runs (it would reach for ``Material.brdf_moments``, which is gone).
 - ``on_shutdown(fn)`` adds a clean-up step (the job runner cancels its jobs and kills their
   child processes, gives their window-manager timers and progress back).
+- ``file_loading`` runs before another file is opened (a ``load_pre`` handler): the
+  ``on_file_load(fn)`` steps drop what was drawn for this file, then the threads drawing or
+  baking for it are ended and joined, so none is at work while Blender replaces the file.
 
 ``import_multiprocessing`` is the other half. Importing ``multiprocessing`` aliases
 ``sys.modules['__mp_main__']`` to the ``__main__`` of the moment. Inside a script run by
@@ -34,6 +37,7 @@ import types
 _THREADS: list = []  # (thread, stop or None)
 _TIMERS: list = []  # functions registered with bpy.app.timers
 _CLEANUPS: list = []  # functions run by shutdown, in order
+_FILE_STEPS: list = []  # functions run by file_loading, in order
 _LOCK = threading.Lock()
 # A module of our own for multiprocessing's alias of __main__ (see the module's docstring).
 _MP_MAIN = types.ModuleType("__mp_main__")
@@ -73,8 +77,13 @@ def import_multiprocessing():
 # --- threads and timers ----------------------------------------------------------------------
 
 
-def start_thread(target, name, stop=None, args=()) -> threading.Thread:
+def start_thread(target, name, stop=None, args=(), outlives_file=False) -> threading.Thread:
+    """``target`` in a daemon thread. It must not call into Blender (bpy, even ``bpy.app.timers``):
+    it hands its result to a timer registered from the main thread. ``outlives_file``: it may
+    go on while another file is opened (a job's listener, the warm-up: their results belong to
+    no file); the others are ended first (``file_loading``)."""
     thread = threading.Thread(target=target, args=args, name=name, daemon=True)
+    thread.brdf_moments_outlives_file = outlives_file
     with _LOCK:
         _THREADS[:] = [(t, s) for t, s in _THREADS if t.is_alive()]
         _THREADS.append((thread, stop))
@@ -112,6 +121,45 @@ def on_shutdown(fn):
     if fn not in _CLEANUPS:
         _CLEANUPS.append(fn)
     return fn
+
+
+def on_file_load(fn):
+    """``fn`` runs before another file is opened, ahead of the threads being ended."""
+    if fn not in _FILE_STEPS:
+        _FILE_STEPS.append(fn)
+    return fn
+
+
+def file_loading(timeout=5.0) -> dict:
+    """Before another file is opened (``load_pre``): what the add-on drew or baked for this file
+    is dropped (the ``on_file_load`` steps make every thread's result stale and clear what
+    waits to be placed), then its threads are asked to stop and joined, ``timeout`` seconds in
+    all, so that none is still working while Blender frees this file's data and reads the next.
+    A job's listener and the warm-up go on (``outlives_file``). Returns what it found."""
+    report = {"steps": 0, "threads": 0, "left": []}
+    for fn in list(_FILE_STEPS):
+        try:
+            fn()
+            report["steps"] += 1
+        except Exception as exc:  # noqa: BLE001 - one failing step must not stop the others
+            print(f"BRDF Moments: opening a file: {type(exc).__name__}: {exc}")
+    with _LOCK:
+        ending = [(t, s) for t, s in _THREADS if t.is_alive() and not t.brdf_moments_outlives_file]
+    for thread, stop in ending:
+        if stop is not None:
+            try:
+                stop()
+            except Exception as exc:  # noqa: BLE001
+                print(f"BRDF Moments: opening a file: stopping {thread.name}: {type(exc).__name__}: {exc}")
+    deadline = time.monotonic() + timeout
+    for thread, _ in ending:
+        report["threads"] += 1
+        thread.join(max(deadline - time.monotonic(), 0.0))
+        if thread.is_alive():
+            report["left"].append(thread.name)
+    if report["left"]:
+        print(f"BRDF Moments: opening a file: still running after {timeout:.0f} s: {', '.join(report['left'])}")
+    return report
 
 
 def shutdown(timeout=30.0) -> dict:

@@ -53,10 +53,14 @@ def label_image(rgba, layout, labels):
 
 
 def write_preview_image(mat, rgba):
-    """The preview as a float image (linear radiance; ``rgba`` rows top first), kept in the .blend."""
+    """The preview as a float image (linear radiance; ``rgba`` rows top first), kept in the .blend,
+    and its thumbnail for the panel (an icon of the add-on's own, icons.py)."""
+    from .icons import put_thumbnail
     from .images import keep_image
 
-    return keep_image(preview_image_name(mat), rgba, float_buffer=True)
+    img = keep_image(preview_image_name(mat), rgba, float_buffer=True)
+    put_thumbnail(mat.name, rgba)
+    return img
 
 
 def read_preview_image(mat):
@@ -195,10 +199,11 @@ def _start(task):
     lifecycle.register_timer(_apply_posted, first_interval=POLL)
 
 
+@lifecycle.on_file_load
 @lifecycle.on_shutdown
 def _stop_all():
-    """Unregister: every live work in flight becomes stale (it stops at its next stage) and
-    nothing it posted is applied."""
+    """Unregister, or another file is opened: every live work in flight becomes stale (it stops
+    at its next stage) and nothing it posted is applied."""
     for name in list(_GEN):
         _GEN[name] += 1
     with _LOCK:

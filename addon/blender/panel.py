@@ -22,6 +22,7 @@ import os
 
 import bpy
 
+from . import icons, lifecycle
 from .live import preview_image_name
 
 # --- measuring ------------------------------------------------------------------------------
@@ -538,8 +539,9 @@ def draw_preview(layout, mat, cells):
     op.material, op.use_panel_settings = mat.name, True
     if pimg is not None:
         row.operator("brdf_moments.show_image", text="", icon="FULLSCREEN_ENTER").image = pimg.name
-        if getattr(pimg, "preview", None) is not None:
-            col.template_icon(icon_value=pimg.preview.icon_id, scale=(int(cells.w) + 0.5) / ui_unit())
+        thumb = thumbnail_icon(mat)
+        if thumb is not None:
+            col.template_icon(icon_value=thumb, scale=(int(cells.w) + 0.5) / ui_unit())
 
 
 def draw_export(layout, mat, cells):
@@ -614,25 +616,17 @@ def draw_material(layout, mat, context=None):
             draw(layout.column(), mat, cells)
 
 
-# --- the charts' pictures -------------------------------------------------------------------
+# --- the charts' pictures and the preview's thumbnail ----------------------------------------
 # Each chart is drawn for the panel at the size it is shown (Blender's own thumbnail of an image
-# is 128 px, which made the charts unreadable), into a preview of bpy.utils.previews, in a
-# thread; the panel shows the last picture until the new one is in.
+# is 128 px, which made the charts unreadable), in a thread, into an icon of the add-on's own
+# (icons.py, which also holds the preview's thumbnail); the panel shows the last picture until
+# the new one is in.
 
-_PREVIEWS = [None]
-MAX_CHARTS = 16
-_SHOWN: dict = {}  # preview key -> the signature of what it shows
-_WANTED: dict = {}  # preview key -> the signature being drawn
+MAX_CHARTS = icons.MAX_ICONS  # the charts share the icons' bound with the thumbnails
+_WANTED: dict = {}  # icon key -> the signature being drawn
 _DONE: list = []  # (key, signature, pixels or None: it could not be drawn) from the threads
-_FAILED: dict = {}  # preview key -> the signature that could not be drawn (damaged data, no region)
-
-
-def _previews():
-    if _PREVIEWS[0] is None:
-        from bpy.utils import previews
-
-        _PREVIEWS[0] = previews.new()
-    return _PREVIEWS[0]
+_FAILED: dict = {}  # icon key -> the signature that could not be drawn (damaged data, no region)
+_THUMBS_PENDING: set = set()  # materials whose thumbnail is being made from their image
 
 
 def _signature(mat, kind, side):
@@ -657,22 +651,31 @@ def chart_icon(mat, kind, side):
     when what it shows changed; None before the first picture is in."""
     if bpy.app.background or side < 32:
         return None
-    key = f"{mat.name}|{kind}|{side}"  # one per width: the sidebar and Properties show it at once
+    key = icons.chart_key(mat.name, kind, side)  # one per width: the sidebar and Properties show it at once
     sig = _signature(mat, kind, side)
     if _FAILED.get(key) == sig:
         return None
-    if _SHOWN.get(key) != sig and _WANTED.get(key) != sig:
+    if icons.signature(key) != sig and _WANTED.get(key) != sig:
         _WANTED[key] = sig
         name = mat.name
         from .lifecycle import register_timer  # unregister stops it (lifecycle.shutdown)
 
         register_timer(lambda: _start_chart(name, kind, side, key, sig), first_interval=0.0)
-    pv = _previews().get(key)
-    return pv.icon_id if pv is not None and key in _SHOWN else None
+    return icons.icon_id(key)
 
 
 def chart_failed(mat, kind, side):
-    return _FAILED.get(f"{mat.name}|{kind}|{side}") == _signature(mat, kind, side)
+    return _FAILED.get(icons.chart_key(mat.name, kind, side)) == _signature(mat, kind, side)
+
+
+def charts_pending() -> bool:
+    """True while a chart asked for is neither in nor found impossible to draw."""
+    return any(sig not in (icons.signature(k), _FAILED.get(k)) for k, sig in _WANTED.items())
+
+
+def chart_sizes() -> list:
+    """(width, height) of every chart picture held."""
+    return [size for key, size in zip(icons.keys(), icons.sizes()) if key.startswith("chart|")]
 
 
 def _start_chart(name, kind, side, key, sig):
@@ -682,6 +685,8 @@ def _start_chart(name, kind, side, key, sig):
 
     mat = bpy.data.materials.get(name)
     if mat is None or _WANTED.get(key) != sig:
+        if _WANTED.get(key) == sig:
+            _WANTED.pop(key)  # its material is gone: nothing will come
         return None
     state = mat.brdf_moments
     try:
@@ -721,7 +726,7 @@ def _start_chart(name, kind, side, key, sig):
         _FAILED[key] = sig
         return None
 
-    def run():
+    def run():  # numpy only: no bpy in this thread
         try:
             px = draw()
         except Exception as exc:  # noqa: BLE001 - a failed drawing keeps the last picture
@@ -736,30 +741,64 @@ def _start_chart(name, kind, side, key, sig):
     return None
 
 
+def _evicted(key):
+    """A chart's icon went (the bound): drawn again when the panel shows it next."""
+    _WANTED.pop(key, None)
+
+
 def _place_charts():
+    placed = False
     while _DONE:
         key, sig, px = _DONE.pop(0)
-        if _PREVIEWS[0] is None or _WANTED.get(key) != sig:
+        if _WANTED.get(key) != sig:
             continue
         if px is None:
             _FAILED[key] = sig
             continue
-        _SHOWN.pop(key, None)  # re-inserted below, as the newest
-        while len(_SHOWN) >= MAX_CHARTS:  # bounded: the oldest picture goes (a resized sidebar makes new ones)
-            old = next(iter(_SHOWN))
-            _SHOWN.pop(old)
-            _WANTED.pop(old, None)
-            if old in _previews():
-                del _previews()[old]
-        pv = _previews().get(key) or _previews().new(key)
-        h, w = px.shape[:2]
-        pv.image_size = (w, h)
-        pv.image_pixels_float.foreach_set(px[::-1].astype("float32").ravel())  # rows from the bottom
-        _SHOWN[key] = sig
-        for win in bpy.context.window_manager.windows:
-            for area in win.screen.areas:
-                area.tag_redraw()
-    return 0.05 if any(_WANTED[k] not in (_SHOWN.get(k), _FAILED.get(k)) for k in _WANTED) else None
+        icons.put(key, px, signature=sig, on_evict=_evicted)
+        placed = True
+    if placed:
+        icons.redraw()
+    return 0.05 if charts_pending() else None
+
+
+def thumbnail_icon(mat):
+    """The icon id of ``mat``'s preview thumbnail; None while there is none, and then (in a
+    window) it is made from the preview image by a timer: after a file is opened, or when the
+    icons' bound dropped it."""
+    found = icons.icon_id(icons.thumbnail_key(mat.name))
+    if found is None and not bpy.app.background and mat.name not in _THUMBS_PENDING:
+        _THUMBS_PENDING.add(mat.name)
+        name = mat.name
+
+        def make():
+            _THUMBS_PENDING.discard(name)
+            m = bpy.data.materials.get(name)
+            if m is not None:
+                from .live import read_preview_image
+
+                rgba = read_preview_image(m)
+                if rgba is not None:
+                    icons.put_thumbnail(name, rgba)
+            return None
+
+        from .lifecycle import register_timer
+
+        register_timer(make, first_interval=0.0)
+    return found
+
+
+@lifecycle.on_file_load
+def file_loading():
+    """Before another file is opened: the pictures held describe this file's materials (a
+    material of the same name there may hold other data), so they all go, and nothing drawn
+    for this file is placed in the next."""
+    _WANTED.clear()
+    _DONE.clear()
+    _FAILED.clear()
+    _THUMBS_PENDING.clear()
+    _MEMO.clear()
+    icons.drop()
 
 
 def attach():
@@ -771,14 +810,10 @@ def attach():
 def detach():
     if bpy.app.timers.is_registered(_place_charts):
         bpy.app.timers.unregister(_place_charts)
-    if _PREVIEWS[0] is not None:
-        from bpy.utils import previews
-
-        previews.remove(_PREVIEWS[0])
-        _PREVIEWS[0] = None
-    _SHOWN.clear()
+    icons.close()
     _WANTED.clear()
     _FAILED.clear()
+    _THUMBS_PENDING.clear()
     _MEMO.clear()
     _ITEM_NAMES.clear()
     _DONE.clear()

@@ -40,6 +40,13 @@ def _file_loaded(*_args):
     material.relink_textures()
 
 
+@bpy.app.handlers.persistent
+def _file_loading(*_args):
+    """Before another file is opened: the add-on's drawing and baking threads are ended and what
+    they drew for this file dropped (lifecycle.file_loading)."""
+    lifecycle.file_loading()
+
+
 # What the main thread imports lazily while jobs run (a job's finish, the panel, the live
 # preview): imported once here instead, so that no job waits on a cold disk or a compile.
 PRELOAD = (
@@ -74,6 +81,8 @@ def register(operators):
     panel.attach()
     if _file_loaded not in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.append(_file_loaded)
+    if _file_loading not in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.append(_file_loading)
 
 
 # What the last unregister found still running (tests read it).
@@ -83,6 +92,8 @@ LAST_SHUTDOWN: dict = {}
 def unregister(operators):
     if _file_loaded in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(_file_loaded)
+    if _file_loading in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.remove(_file_loading)
     # Jobs, timers and threads first: none of them may reach for a class or property that is
     # about to go (a timer after this would find no Material.brdf_moments).
     LAST_SHUTDOWN.clear()

@@ -13,6 +13,7 @@ import numpy as np
 from ..core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
 from ..core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE, MU_SLOPE_RANGE, RANGES
 from ..core.moments import CHANNELS, PROFILE_KEYS
+from . import lifecycle
 from .images import draw_later
 
 MU_MIN, MU_MAX = MU_SLOPE_RANGE  # the declared ranges (core/limits.py), shared with the command line
@@ -483,19 +484,27 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
         name = self.id_data.name
         _ANNOUNCED["gen"] = gen = _ANNOUNCED.get("gen", 0) + 1
+        done = []
 
-        def work():
-            text = _announcement_json(_announce(*inputs))
+        def work():  # numpy only: a thread must not call into Blender (not even to add a timer)
+            try:
+                done.append(_announcement_json(_announce(*inputs)))
+            except Exception as exc:  # noqa: BLE001 - the last announcement stays
+                print(f"BRDF Moments: announcing: {type(exc).__name__}: {exc}")
+                done.append(None)
 
-            def place():
-                mat = bpy.data.materials.get(name)
-                if mat is not None and _ANNOUNCED.get("gen") == gen:
-                    mat.brdf_moments.announced_json = text
-                return None
-
-            register_timer(place, first_interval=0.0)
+        def place():  # on the main thread, registered from it
+            if _ANNOUNCED.get("gen") != gen:
+                return None  # a newer slider move asked again
+            if not done:
+                return 0.05
+            mat = bpy.data.materials.get(name)
+            if mat is not None and done[0] is not None:
+                mat.brdf_moments.announced_json = done[0]
+            return None
 
         start_thread(work, "brdf_moments: announce")
+        register_timer(place, first_interval=0.05)
 
     def slider_targets(self):
         """The sliders as engine targets; a slider still at its fitted value stays exact.
@@ -522,6 +531,12 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
 
 _ANNOUNCED: dict = {}  # the latest announcement asked for (a newer slider move wins)
+
+
+@lifecycle.on_file_load
+def _drop_announcement():
+    """Another file is opened: the announcement being worked out is for this one's material."""
+    _ANNOUNCED["gen"] = _ANNOUNCED.get("gen", 0) + 1
 
 
 def _announce(raw, fit, targets, region):

@@ -372,7 +372,7 @@ def panel_shot(name, charts=False):
         redraw()
         yield 0.5
         for _ in range(100):  # until the charts drawn for these widths are in
-            if not any(panel._WANTED[k] not in (panel._SHOWN.get(k), panel._FAILED.get(k)) for k in panel._WANTED):
+            if not panel.charts_pending():
                 break
             yield 0.1
         panel.AUDIT = []
@@ -402,7 +402,7 @@ def panel_shot(name, charts=False):
                 "drawn": drawn,
                 "whole": full,
                 "cut": cut_cells(drawn + full),
-                "chart_sizes": sorted({tuple(pv.image_size) for pv in panel._previews().values()}),
+                "chart_sizes": sorted({tuple(size) for size in panel.chart_sizes()}),
             }
         )
         log(
