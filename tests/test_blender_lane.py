@@ -95,19 +95,19 @@ def test_legacy_addon_runs_the_whole_flow_in_blender_34(lane_run, sample_table):
     ours = compute_profiles(sample_table("ggx_glossy"))
     for key in ("alpha", "mu_theta", "sigma_tt", "sigma_pp"):
         np.testing.assert_allclose(data["measured"]["avg"][key], ours["avg"][key], rtol=1e-6, atol=1e-9)
-    # The edit (warp mode, the glossy lobe's unclipped width 1.5x, 80 % energy), judged as SPEC §6
-    # does: the written table re-measured view by view against the targets the panel announced.
-    # Measured under the bpy module: energy 1.0 %, variance 5.3 % median / 8.5 % worst, mean
-    # 0.015 rad; the median variance misses SPEC's 2 % and the shape its 10 % (issue 27).
+    # The edit (warp mode: a roughness edit to 1.5x the variance, 80 % energy), judged as SPEC §6
+    # does: the written table re-measured view by view against what the edit announced (measured
+    # on that table), and the whole demo meets it.
     per_view = summary["per_view"]
-    assert per_view["energy"] < 0.02 and per_view["mean"] < 0.02
-    assert per_view["variance_median"] < 0.06 and per_view["variance_worst"] < 0.10
-    # What the panel showed beside the sliders before Apply: the targets' own fit. A 1.5x request
-    # announces less (the grazing views' lobes are clipped by the horizon).
+    assert per_view["meets"]
+    assert per_view["energy"] < 0.02 and per_view["mean"] < 0.005
+    assert per_view["variance_median"] < 0.02 and per_view["variance_worst"] < 0.02
+    # What the panel showed beside the sliders before Apply: the variance asked for (inside the
+    # material's region) and the mean slope its curve gives; the table lands on both.
     announced = summary["announced"]
-    assert announced["sigma2"] < summary["target"]["sigma2"]
-    assert summary["reached"]["sigma2"] == pytest.approx(announced["sigma2"], rel=0.1)
-    assert summary["reached"]["mu_slope"] == pytest.approx(announced["mu_slope"], abs=0.02)
+    assert announced["sigma2"] == pytest.approx(summary["target"]["sigma2"], rel=1e-6)
+    assert summary["reached"]["sigma2"] == pytest.approx(announced["sigma2"], rel=0.01)
+    assert summary["reached"]["mu_slope"] == pytest.approx(announced["mu_slope"], abs=0.01)
     # The preview took the baked path (this Blender has no OSL) and rendered both spheres.
     assert summary["renders"] and os.path.isfile(summary["renders"][0])
     assert "(baked)" in log or "(baked," in log

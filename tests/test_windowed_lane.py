@@ -204,14 +204,12 @@ def test_apply_reaches_the_sliders_and_a_cancelled_apply_changes_nothing(lane):
     sliders, apply = st["sliders"]["state"], st["apply"]["state"]
     assert sliders["sigma2"] == pytest.approx(1.6 * sliders["fit_sigma2"], rel=1e-5)
     assert os.path.isfile(apply["edited_path"]) and apply["edited_profiles"]
-    # What the panel announced beside the sliders (SPEC §3: the targets' own fit, not the raw
-    # request) is what the table re-fits to, or the panel says it was not reached and what the
-    # table re-fits (BENCHMARKS "Editing, per view").
+    # What the panel announced beside the sliders (SPEC §3: the variance asked for, the mean slope
+    # the material's curve gives there) is what the table re-fits to, or the panel says it was not
+    # reached and what the table re-fits (BENCHMARKS "Editing").
     said = apply["announced"]
     assert said is not None, apply
-    assert apply["achieved_sigma2"] == pytest.approx(said["sigma2"], rel=0.05)
-    moved = (apply["achieved_mu_slope"] - sliders["fit_mu_slope"]) / (said["mu_slope"] - sliders["fit_mu_slope"])
-    assert moved > 0.5, apply
+    assert apply["achieved_sigma2"] == pytest.approx(said["sigma2"], rel=0.01)
     if apply["achieved_mu_slope"] != pytest.approx(said["mu_slope"], abs=0.01):
         assert f"mean slope {apply['achieved_mu_slope']:+.3f} for {said['mu_slope']:+.3f}" in apply["edit_warnings"]
     # The table Blender wrote, measured again here: its fit is what the panel reports.
@@ -320,12 +318,10 @@ def test_an_apply_in_the_reopened_file(lane):
     assert quiet["job"]["label"] == "Re-synthesizing" and quiet["job"]["outcome"] == "finished", quiet["job"]
     state = quiet["state"]
     assert state["sigma2"] == pytest.approx(1.3 * state["fit_sigma2"], rel=1e-5)
-    # The re-fitted variance moved most of the way, and the panel says so if it fell short (the
-    # per-view figures are the measure, BENCHMARKS "Editing, per view"; gold x1.3 refits ~7 % low).
+    # The re-fitted variance is the one asked for (a roughness edit solves for it), or the panel
+    # says it fell short.
     said = state["announced"]
     assert said is not None, state
-    moved = (state["achieved_sigma2"] - state["fit_sigma2"]) / (said["sigma2"] - state["fit_sigma2"])
-    assert moved > 0.5, state
     if state["achieved_sigma2"] != pytest.approx(said["sigma2"], rel=0.02):
         assert f"variance {state['achieved_sigma2']:.4g} for {said['sigma2']:.4g}" in state["edit_warnings"], state
     assert state["edited_path"] != st["reopen"]["state"]["edited_path"] and os.path.isfile(state["edited_path"])

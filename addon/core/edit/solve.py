@@ -690,6 +690,13 @@ def roughness_edit(
     note = _roughness_energy_note(new_prof, prof)
     if note:
         warnings.append(note)
+    # What the panel showed before Apply (the curve's mean slope, the request's variance) against
+    # what the table re-fits to: said when they differ (the curve is interpolated between its
+    # ladder's scales).
+    said_mu = mu_r if targets.mu_slope is not None else (region.curve_mu(s2_r) if region is not None else None)
+    miss = _target_note(achieved[0], achieved[1], said_mu, s2_r)
+    if miss:
+        warnings.append(miss)
     res.operator = {
         "roughness_scale": float(sol.scale),
         "floor": [float(v) for v in src.kd],
