@@ -806,12 +806,12 @@ def roughness_region(table, prof, fit, src=None, stop=None):
         src = roughness_source(table, prof)
     own_prof, own_fit = measure_table(table, prof.theta_o, prof.split)
     curve = material_curve(src, prof.theta_o, prof.split, stop=stop, fit1=own_fit)
-    reach = []
-    for sign in (-1.0, 1.0):
-        if stop is not None and stop():
-            raise R.Superseded
-        got = tilt_lobes(table, own_prof, own_fit, sign * REGION_TILT, stop=stop)[2].get("mu_slope")
-        reach.append(0.0 if got is None else abs(got - own_fit["mu_slope"]))
+    # The tilt's reach, measured one way and taken as the same the other (ggx_glossy: 0.038 and
+    # 0.035 for +-0.1): half the cost of the region's tilt runs.
+    if stop is not None and stop():
+        raise R.Superseded
+    got = tilt_lobes(table, own_prof, own_fit, REGION_TILT, stop=stop)[2].get("mu_slope")
+    reach = [0.0 if got is None else abs(got - own_fit["mu_slope"])] * 2
     ok = curve.usable()
     order = np.argsort(curve.sigma2[ok])
     s2, mu = curve.sigma2[ok][order], curve.mu[ok][order]
