@@ -62,22 +62,22 @@ def joint_floor(table, kd_paper):
     for c in range(3):
         if kd_paper[c] <= 0.0:
             continue
-        # The coarse grid reads both masking forms; the search keeps the better one's.
-        grid = np.linspace(0.0, 1.0, COARSE)
-        coarse = [floor_misfit(rho[c], valid[c], t * kd_paper[c]) for t in grid]
-        k = int(np.argmin([m for m, _ in coarse]))
-        form = coarse[k][1]
-        if form is None:
-            continue
-        cache = {}
+        # Both masking forms at every step: which one the table has shows only near its true
+        # floor (a height-correlated GGX plastic read at the paper's floor fits separable better).
+        cache: dict = {}
 
-        def f(t, c=c, cache=cache, form=form):
+        def f(t, c=c, cache=cache):
             if t not in cache:
-                cache[t] = floor_misfit(rho[c], valid[c], t * kd_paper[c], forms=(form,))[0]
+                cache[t] = floor_misfit(rho[c], valid[c], t * kd_paper[c])[0]
             return cache[t]
 
+        grid = np.linspace(0.0, 1.0, COARSE)
+        coarse = [f(t) for t in grid]
+        k = int(np.argmin(coarse))
+        if not np.isfinite(coarse[k]):
+            continue
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, COARSE - 1)]
-        best = min([(coarse[k][0], grid[k]), _golden(f, lo, hi, SEARCH_STEPS)])
+        best = min([(coarse[k], grid[k]), _golden(f, lo, hi, SEARCH_STEPS)])
         ts[c] = best[1]
         kd[c] = ts[c] * kd_paper[c]
     return kd, ts
