@@ -231,7 +231,10 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     from addon.core.render.live import LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
 
     table = read_merl(state.source_path)
-    new = fast_edit(table, EditTargets(sigma2=state.sigma2), state.profiles(), state.fit(), draft=True)
+    # the draft reads its scale off the material's curve, stored with the analysis
+    new = fast_edit(
+        table, EditTargets(sigma2=state.sigma2), state.profiles(), state.fit(), draft=True, region=state.region()
+    )
     env = load_environment(resolve_environment(None))
     rgb, cov = bake_sphere(TableBRDF(new, state.profiles()), env, max(d // LIVE_DIAMETER_DIV, 8), LIVE_SAMPLES, 0)
     want = live.upsample(rgb * cov[..., None], d)
