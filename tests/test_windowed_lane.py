@@ -247,6 +247,9 @@ def test_build_preview_then_save_and_reopen(lane):
     if prev["job"] and prev["job"]["label"] not in ("Analysing", "Re-synthesizing"):
         assert prev["job"]["outcome"] == "finished"
     assert prev["state"]["preview_material"] and "BRDF Moments Preview" in prev["state"]["scenes"]
+    # The panel's thumbnail of it is an icon of the add-on's own, at the image's size (under 320 px).
+    shown, image = prev["thumbnail"]
+    assert shown is not None and shown == image, prev["thumbnail"]
     back, saved = st["reopen"]["state"], st["save"]["state"]
     assert os.path.isfile(st["save"]["blend"])
     for key in (

@@ -622,7 +622,6 @@ def draw_material(layout, mat, context=None):
 # (icons.py, which also holds the preview's thumbnail); the panel shows the last picture until
 # the new one is in.
 
-MAX_CHARTS = icons.MAX_ICONS  # the charts share the icons' bound with the thumbnails
 _WANTED: dict = {}  # icon key -> the signature being drawn
 _DONE: list = []  # (key, signature, pixels or None: it could not be drawn) from the threads
 _FAILED: dict = {}  # icon key -> the signature that could not be drawn (damaged data, no region)

@@ -194,6 +194,14 @@ def preview_digest():
     return hashlib.sha1(buf.tobytes()).hexdigest()
 
 
+def thumbnail():
+    """The preview's thumbnail among the add-on's icons: [its size, the preview image's size]."""
+    icons = sys.modules["brdf_moments.addon.blender.icons"]
+    px = icons.pixels(icons.thumbnail_key(MAT))
+    img = bpy.data.images.get(f"BRDF Moments preview: {MAT}")
+    return [list(px.shape[1::-1]) if px is not None else None, list(img.size) if img is not None else None]
+
+
 def record(name, **extra):
     step = {"name": name, "state": snapshot(), "t": time.monotonic(), **extra}
     result["steps"].append(step)
@@ -566,7 +574,13 @@ def session():
     redraw()
     yield 0.8
     record(
-        "build_preview", status=status, message=message, call_seconds=call, job=last_job(), shot=screenshot("preview")
+        "build_preview",
+        status=status,
+        message=message,
+        call_seconds=call,
+        job=last_job(),
+        shot=screenshot("preview"),
+        thumbnail=thumbnail(),
     )
     yield from panel_shot("preview")
 
