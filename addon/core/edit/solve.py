@@ -611,6 +611,7 @@ def roughness_edit(
     key = (source_key(), repr(targets)) if keep else None
     kept = _KEPT.get(key) if key is not None else None
     if kept is not None:
+        tell(2, 3)  # the synthesis stage: a lookup (the stages are still reported, in order)
         res = dataclasses.replace(kept, table=kept.table.copy(), warnings=list(kept.warnings), reused=True)
         if remeasure and res.fidelity is None:
             res.fidelity = measure(res.profiles, res.targets, prof, reachable=np.ones_like(res.targets.alpha, bool))
