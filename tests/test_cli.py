@@ -177,3 +177,33 @@ def test_every_help_prints_and_render_says_its_default():
     args = build_parser().parse_args(["render", "x.binary", "--out", "o.png"])
     assert args.path == "baked" and args.bake_samples == RENDER_BAKE_SAMPLES == FINAL_SAMPLES
     assert "baked (default" in text and " ".join(RENDER_DEFAULT_ERROR.split()) in text
+
+
+def test_edit_takes_relative_moves_and_reports_the_operator(tmp_path):
+    """--sigma2 x0.5 halves the fitted variance (the written file re-fits to it within 1 %),
+    the output names the roughness scale, floor and masking, and malformed moves exit 2."""
+    import samples
+    from addon.core.fits import fit_material
+    from addon.core.merl import read_merl
+    from addon.core.profiles import compute_profiles
+
+    src = samples.sample_path("ggx_glossy")
+    fitted = fit_material(compute_profiles(read_merl(src)))["sigma2"]
+    out = tmp_path / "half.binary"
+    report = tmp_path / "half.json"
+    res = run("edit", src, "--out", str(out), "--sigma2", "x0.5", "--report", str(report))
+    assert res.returncode == 0, res.stderr
+    assert "operator  roughness x" in res.stdout and "masking separable" in res.stdout
+    assert "re-read   mean slope" in res.stdout
+    got = fit_material(compute_profiles(read_merl(out)))["sigma2"]
+    assert got == pytest.approx(0.5 * fitted, rel=0.01)
+    op = json.loads(report.read_text())["operator"]
+    assert 0.5 < op["roughness_scale"] < 0.7 and op["masking"] == "separable" and not op["clamped"]
+    for bad, says in (("x0", "above 0"), ("xabc", "not a number"), ("x-1", "above 0")):
+        res = run("edit", src, "--out", str(tmp_path / "bad.binary"), "--sigma2", bad)
+        assert res.returncode == 2 and says in res.stderr and "Traceback" not in res.stderr
+    res = run("edit", src, "--out", str(tmp_path / "bad.binary"), "--mu", "+abc")
+    assert res.returncode == 2 and "not a number" in res.stderr
+    res = run("edit", src, "--out", str(tmp_path / "bad.binary"), "--mu-by", "5")
+    assert res.returncode == 2 and "must be within" in res.stderr
+    assert not (tmp_path / "bad.binary").exists()
