@@ -644,26 +644,13 @@ def _reread(table, theta_o, split):
 
 def _honesty(res, back_prof, back_fit):
     """The written table against the announcement (SPEC §6): re-fit mu~ and sigma~^2, and per
-    view (views 5-80 deg holding >= 5 % of the peak, per channel, the worst) mean, variance and
-    energy."""
-    from ..core.edit.reach import counted_views
+    view (``fidelity.against_announcement``) mean, variance and energy."""
+    from ..core.edit.fidelity import against_announcement
 
-    said = res.profiles
-    theta = np.asarray(said.theta_o, float)
-    st = lambda P, k: np.nan_to_num(np.stack([np.asarray(P[c][k], float) for c in "rgb"], axis=1))  # noqa: E731
-    use = counted_views(theta, st(said, "alpha"))
-    var = lambda P: 0.5 * (st(P, "sigma_tt") + st(P, "sigma_pp"))  # noqa: E731
-    with np.errstate(divide="ignore", invalid="ignore"):
-        e = np.abs(st(back_prof, "alpha") / st(said, "alpha") - 1.0)[use]
-        v = np.abs(var(back_prof) / var(said) - 1.0)[use]
-    m = np.abs(st(back_prof, "mu_theta") - st(said, "mu_theta"))[use]
-    worst = lambda a: float(np.nanmax(a)) if a.size else float("nan")  # noqa: E731
     return {
         "mu": abs(back_fit["mu_slope"] - res.announced[0]),
         "sigma2": abs(back_fit["sigma2"] / res.announced[1] - 1.0),
-        "view_mean": worst(m),
-        "view_var": worst(v),
-        "view_energy": worst(e),
+        **against_announcement(res.profiles, back_prof),
     }
 
 

@@ -244,26 +244,16 @@ def resolve_moves(args, fit):
 def _check_written(path, res, prof):
     """Read the written file back and measure it as the announcement was measured (a fresh
     analysis): what anyone loading it will see, printed beside what was announced."""
-    import numpy as np
-
-    from ..core.edit.reach import counted_views
+    from ..core.edit.fidelity import against_announcement
     from ..core.edit.scale import measure
     from ..core.merl import read_merl
 
     got_prof, got_fit = measure(read_merl(path), prof.theta_o, prof.split)
-    said, got = res.profiles["avg"], got_prof["avg"]
-    g = lambda P, k: np.nan_to_num(np.asarray(P[k], float))  # noqa: E731
-    use = counted_views(np.asarray(prof.theta_o, float), g(said, "alpha"))[:, 0]
-    var = lambda P: 0.5 * (g(P, "sigma_tt") + g(P, "sigma_pp"))  # noqa: E731
-    with np.errstate(divide="ignore", invalid="ignore"):
-        de = np.abs(g(got, "alpha") / g(said, "alpha") - 1.0)[use]
-        dv = np.abs(var(got) / var(said) - 1.0)[use]
-    dm = np.abs(g(got, "mu_theta") - g(said, "mu_theta"))[use]
-    worst = lambda a: float(np.nanmax(a)) if a.size else float("nan")  # noqa: E731
+    d = against_announcement(res.profiles, got_prof)
     print(
         f"re-read   mean slope {got_fit['mu_slope']:+.4f}  variance {got_fit['sigma2']:.5f}; per view against the "
-        f"announcement (avg, {int(use.sum())} views): energy {100 * worst(de):.2f} %, variance {100 * worst(dv):.2f} %, "
-        f"mean {worst(dm):.4f} rad (worst)"
+        f"announcement ({d['judged']} views x channels, the worst): energy {100 * d['view_energy']:.2f} %, "
+        f"variance {100 * d['view_var']:.2f} %, mean {d['view_mean']:.4f} rad"
     )
 
 

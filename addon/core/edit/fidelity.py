@@ -371,3 +371,18 @@ def report(result, original: Profiles, source=None) -> dict:
         "meets": bool(fid is not None and fid["meets"] and not result.nothing_to_do),
         "tolerances": dict(TOLERANCES),
     }
+
+
+def against_announcement(said: Profiles, got: Profiles) -> dict:
+    """Per view, a table's fresh analysis ``got`` against what an edit announced ``said``
+    (views 5-80 deg holding >= 5 % of the peak, per channel, the worst of r, g, b): energy and
+    variance ratio errors, mean error (rad), and how many (view, channel) pairs were judged."""
+    use = counted_views(said.theta_o, _stack(said, "alpha"))
+    st = lambda P, k: np.nan_to_num(_stack(P, k))  # noqa: E731
+    var = lambda P: 0.5 * (st(P, "sigma_tt") + st(P, "sigma_pp"))  # noqa: E731
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.abs(st(got, "alpha") / st(said, "alpha") - 1.0)[use]
+        v = np.abs(var(got) / var(said) - 1.0)[use]
+    m = np.abs(st(got, "mu_theta") - st(said, "mu_theta"))[use]
+    worst = lambda a: float(np.nanmax(a)) if a.size else float("nan")  # noqa: E731
+    return {"view_energy": worst(e), "view_var": worst(v), "view_mean": worst(m), "judged": int(use.sum())}

@@ -215,22 +215,27 @@ ALBEDO_STRIDE = 3  # the albedo check on every third analysed view (and the last
 ENERGY_WARNING = 0.2  # warn when a view's re-measured energy is this far off its target
 
 
+def _views_off(theta, got, want, use, what):
+    """A warning naming the views (rows of ``use``) whose energy ``got`` is more than
+    ENERGY_WARNING off ``want``, or None; ``what`` says how, e.g. 'energy not held'."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = np.where(use, np.abs(got / want - 1.0), 0.0)
+    bad = off > ENERGY_WARNING
+    if bad.ndim > 1:
+        bad = bad.any(axis=1)
+    if not bad.any():
+        return None
+    deg = np.degrees(np.asarray(theta, float)[bad])
+    return f"{what} at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): up to {100 * off.max():.0f} %"
+
+
 def _energy_note(new_prof, vt):
     """A warning naming the views (up to 80 deg, >= 1e-6 of the peak) whose energy is > 20 % off."""
     theta = np.asarray(vt.theta_o, float)
     got = np.stack([np.nan_to_num(np.asarray(new_prof[c]["alpha"], float)) for c in "rgb"], axis=1)
     want = vt.alpha
     use = (theta[:, None] <= math.radians(80.0) + 1e-9) & (want > 1e-6 * max(float(want.max(initial=0.0)), 1e-300))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        off = np.where(use, np.abs(got / want - 1.0), 0.0)
-    bad = (off > ENERGY_WARNING).any(axis=1)
-    if not bad.any():
-        return None
-    deg = np.degrees(theta[bad])
-    return (
-        f"energy not held at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): off by up to "
-        f"{100 * off.max():.0f} %"
-    )
+    return _views_off(theta, got, want, use, "energy not held")
 
 
 # A re-fitted slider this far from its target is reported (the issue-4 round-trip tolerances):
@@ -755,20 +760,11 @@ def _roughness_energy_note(new_prof: Profiles, prof: Profiles):
     """A warning naming the views (holding >= 1e-6 of the peak) whose energy a roughness edit
     changed by more than ENERGY_WARNING: physics (masking, the horizon), said so the artist
     knows; the announcement carries the new energies."""
-    theta = np.asarray(prof.theta_o, float)
     got = np.nan_to_num(np.asarray(new_prof["avg"]["alpha"], float))
     was = np.nan_to_num(np.asarray(prof["avg"]["alpha"], float))
     use = was > 1e-6 * max(float(was.max(initial=0.0)), 1e-300)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        off = np.where(use, np.abs(got / was - 1.0), 0.0)
-    bad = off > ENERGY_WARNING
-    if not bad.any():
-        return None
-    deg = np.degrees(theta[bad])
-    return (
-        f"energy changes with the roughness at {int(bad.sum())} view(s) ({deg.min():.0f}-{deg.max():.0f} deg): "
-        f"up to {100 * off.max():.0f} % (masking and the horizon)"
-    )
+    note = _views_off(prof.theta_o, got, was, use, "energy changes with the roughness")
+    return None if note is None else note + " (masking and the horizon)"
 
 
 def scale_to_albedo(result: EditResult, limit: float = 1.0) -> EditResult:
