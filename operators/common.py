@@ -66,10 +66,10 @@ def analysis_work(path, floor="min"):
             # Once per analysis, stored: the panel shows it and says, before Apply, what the
             # edit reaches. Warp mode's is the material's curve under roughness edits and the
             # tilt's reach (a few syntheses); model mode's the paper's sketch (0.1 s).
-            regions = {
-                "warp": roughness_region(table, prof, fit).to_json(),
-                "model": reachable_region(prof, fit, mode="model").to_json(),
-            }
+            warp = roughness_region(table, prof, fit)  # None: no lobe to read (Apply says so)
+            regions = {"model": reachable_region(prof, fit, mode="model").to_json()}
+            if warp is not None:
+                regions["warp"] = warp.to_json()
         report_progress(100, 100)
         return table.name, prof, fit, regions
 

@@ -562,6 +562,16 @@ def solve_tilt(table, prof: Profiles, fit: dict, want: float, stop=None):
     return best[1], best[2], best[3], best[4]
 
 
+def _source_or_refuse(table, prof):
+    src = roughness_source(table, prof)
+    if src is None:
+        raise ValueError(
+            f"{table.name or 'the table'}: no microfacet lobe to read in it, so its roughness cannot be edited "
+            "(strength and colour still can)"
+        )
+    return src
+
+
 def roughness_point(targets: EditTargets, fit: dict, region: ReachableRegion | None):
     """((mu, sigma2) asked, (mu, sigma2) the edit makes, warnings) of a roughness edit: with a
     region built on the material's curve, a point outside it goes to its nearest point (the mean
@@ -610,7 +620,7 @@ def roughness_edit(
     if region_clamped and targets.mu_slope is not None:
         targets = dataclasses.replace(targets, mu_slope=mu_r)
     t0 = time.perf_counter()
-    src = roughness_source(table, prof)
+    src = _source_or_refuse(table, prof)
     tell(1, 3)
     t_src = time.perf_counter() - t0
     key = (source_key(), repr(targets)) if keep else None
@@ -729,7 +739,7 @@ def roughness_draft(table, targets: EditTargets, prof: Profiles, fit: dict, regi
     from .scale import first_guess
 
     mu_r, s2_r, warnings = resolve_targets(targets, fit)
-    src = roughness_source(table, prof)
+    src = _source_or_refuse(table, prof)
     if targets.roughness is not None:
         s = float(targets.roughness)
     elif targets.sigma2 is not None:
@@ -795,12 +805,15 @@ REGION_TILT = 0.1  # the tilt asked for each way when the region's width in mean
 def roughness_region(table, prof, fit, src=None, stop=None):
     """Warp mode's reachable region (SPEC §3): the material's curve in sigma~^2, and in mean
     slope the curve widened by what the tilt reaches each way (measured once, on the table
-    itself, for a tilt of REGION_TILT). Computed once per analysis."""
+    itself, for a tilt of REGION_TILT). Computed once per analysis. None when the table holds
+    no lobe a microfacet reading can read."""
     from .scale import material_curve
     from .scale import measure as measure_table
 
     if src is None:
         src = roughness_source(table, prof)
+    if src is None:  # nothing a microsurface reading can hold (a table of a few cells)
+        return None
     own_prof, own_fit = measure_table(table, prof.theta_o, prof.split)
     curve = material_curve(src, prof.theta_o, prof.split, stop=stop, fit1=own_fit)
     # The tilt's reach, measured one way and taken as the same the other (ggx_glossy: 0.038 and
