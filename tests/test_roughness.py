@@ -115,7 +115,6 @@ def test_identity_scale_returns_the_table_exactly(plastic):
 def test_edited_table_is_reciprocal_finite_nonnegative_and_keeps_missing_cells(plastic):
     """Reciprocity: the table is built per (theta_h, theta_d, phi_d) cell, which both
     directions share; check it on swapped directions read from the written table."""
-    from addon.core.geometry import directions_from_half_diff  # noqa: F401 (the frame the table uses)
     from addon.core.merl import lookup
 
     table, prof = plastic

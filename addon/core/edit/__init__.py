@@ -1,14 +1,14 @@
-"""Moment editing (SPEC §3 "Editing"): re-synthesize a tabulated BRDF from slider targets.
+"""Moment editing (SPEC §3 "Editing"): re-synthesize a tabulated BRDF from the sliders.
 
-Modules, in the order an edit runs through them:
-- ``targets``: the sliders (refused outside their declared ranges, ``core.limits``; clamped inside
-  them to what the material can show) and the per-view targets they promise (``view_targets``).
-- ``reach``: what a reciprocal table of this material can show (per view, and the region of the
-  (mu~, sigma~^2) plane); a request outside the region is clamped to its nearest point.
-- ``reciprocal``: the synthesis, a transform of the specular table in (theta_h, theta_d, phi_d)
-  (reciprocal by construction) whose controls are solved with exact operator sensitivities.
-- ``solve``: ``edit`` itself (sliders -> targets -> controls -> table -> re-measure).
-- ``fidelity``: the measuring stick, every view of the written table against its target.
+A variance or mean-slope move in warp mode is a roughness edit; modules in the order it runs:
+- ``floor``: the diffuse floor fitted jointly with the lobe (bounded by the paper's).
+- ``microfacet``: the table read as F(theta_d) D(theta_h) / masking, D from back-scattering.
+- ``roughness``: the slope-space operator (every cell from its source cell, masking recomputed).
+- ``scale``: the roughness scale solved for the requested sigma~^2; the material's curve.
+- ``solve``: ``edit`` itself: the roughness edit, the tilt for a mean slope off the curve (the
+  reciprocal per-view transform of ``reciprocal``), the announcement measured on the table, the
+  region; energy-only edits; model mode (the paper's sketch) through ``targets`` and ``reach``.
+- ``fidelity``: the measuring stick, every view of a table against what was announced; the report.
 The truncated-Gaussian solver shared with the preview and OSL is ``core.truncated``.
 """
 
