@@ -660,3 +660,22 @@ def _cell_lookup(theta_o):
         return cell_indices(*half_diff_from_directions(wi, np.broadcast_to(wo, wi.shape)))
 
     return cells
+
+
+def directional_albedo(table, views=None, stride: int = 1) -> np.ndarray:
+    """(views, 3): integral of rho cos(theta_i) over the hemisphere for each view (default:
+    the profiles' default views); with ``stride``, every stride-th view and the last one only.
+    An edit measures it at its analysed views, with the same operator as its profiles: a second
+    set of views cost a second operator (28 s cold)."""
+    from .limits import MAX_ELEVATIONS, check_int
+
+    stride = check_int(stride, "stride", 1, MAX_ELEVATIONS)
+    views = default_views() if views is None else np.asarray(views, float)
+    op = get_operator(views)
+    full = np.where(table.valid, table.rho, 0.0).T
+    ks = sorted(set(range(0, len(views), stride)) | {len(views) - 1})
+    out = np.empty((len(ks), 3))
+    for i, k in enumerate(ks):
+        cells, w = op.albedo_view(k)
+        out[i] = full[cells].T @ np.asarray(w, dtype=float)
+    return out

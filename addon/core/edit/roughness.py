@@ -20,6 +20,14 @@ times the reading's growth for that cell, so no cell there grows beyond what the
 predicts for it from its own measurement (on an analytic table the two agree to 1e-9 in the
 reading's misfit; capping those cells at the lobe's peak instead broke that agreement on a
 widened GGX plastic and with it the next edit's masking form and floor).
+
+A passive surface returns at most the light it receives. Where the reading cannot explain a
+table at grazing views (a fabric's sheen read as a Fresnel factor far above 1, held down in the
+source by its broad masking), narrowing relieves that masking and the transported values would
+return several times the light received (satin_blue at s = 0.45: albedo 7.2 at 87 deg). So the
+edited specular part is scaled by c(theta_i) c(theta_o), which keeps it reciprocal, so that no
+analysed view's albedo exceeds max(1, the source's own albedo at that view); c = 1 wherever the
+bound holds, so microfacet tables, which keep their energy below it, are untouched.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..integrate import directional_albedo, get_operator
 from ..limits import ROUGHNESS_RANGE
 from ..merl import RES_PD, RES_TD, RES_TH, MerlTable
 from .floor import joint_floor
@@ -46,6 +55,8 @@ from .microfacet import (
 S_RANGE = ROUGHNESS_RANGE  # the roughness scales the operator takes
 FADE_COS = (0.01, 0.06)  # the horizon fade's band in cos of the lower direction (0.6 to 3.4 deg)
 CUBE = (3, RES_TH, RES_TD, RES_PD)
+ENERGY_STRIDE = 3  # the energy bound's quick look: every third analysed view and the last (0.05 s)
+ENERGY_MARGIN = 0.9  # below this share of the bound on those views, no view between them reaches it
 
 
 @dataclass
@@ -60,11 +71,15 @@ class Source:
     spec: np.ndarray  # (3, TH, TD, PD) rho - kd, clipped at 0, 0 where missing
     q: np.ndarray  # (3, TH, TD, PD) spec * gden, completed by F D where missing
     peak: np.ndarray  # (3,) the largest specular value per channel
+    views: np.ndarray  # the analysis's view elevations (the energy bound's views)
+    albedo: np.ndarray  # (views, 3) the table's own directional albedo
+    floor_albedo: np.ndarray  # (views, 3) the floor's share of it
 
 
-def prepare(table: MerlTable, kd_paper, split=True) -> Source | None:
+def prepare(table: MerlTable, kd_paper, split=True, views=None) -> Source | None:
     """The edit's view of ``table``: its floor (``floor.joint_floor``, bounded by ``kd_paper``),
-    microfacet reading and Q. None when there is no lobe to read."""
+    microfacet reading and Q, and its albedo at ``views`` (the analysis's; default views when
+    None). None when there is no lobe to read."""
     kd, t = joint_floor(table, kd_paper) if split else (np.zeros(3), np.zeros(3))
     valid = table.valid.reshape(CUBE)
     spec = np.maximum(table.rho.reshape(CUBE) - kd[:, None, None, None], 0.0) * valid
@@ -75,7 +90,13 @@ def prepare(table: MerlTable, kd_paper, split=True) -> Source | None:
     model_q = reading.fresnel[:, None, :, None] * reading.ndf[None, :, None, None]
     q = np.where(valid, spec * gd[None], model_q)
     peak = spec.reshape(3, -1).max(axis=1)
-    return Source(table, kd, t, reading, spec, q, peak)
+    from ..integrate import default_views
+
+    views = default_views() if views is None else np.asarray(views, float)
+    albedo = directional_albedo(table, views)
+    ones = MerlTable(np.where(table.valid, 1.0, 0.0), table.valid, None)
+    floor_albedo = directional_albedo(ones, views) * kd[None, :]
+    return Source(table, kd, t, reading, spec, q, peak, views, albedo, floor_albedo)
 
 
 def source_index(s: float):
@@ -105,8 +126,116 @@ def scale_roughness(src: Source, s: float, fade: bool = True) -> tuple[MerlTable
     if fade:
         spec, faded = _horizon_fade(src, s, spec)
     spec = np.maximum(np.nan_to_num(spec, nan=0.0, posinf=0.0, neginf=0.0), 0.0)  # finite, nonnegative
+    spec = np.where(valid, spec, 0.0)
+    bounded = _energy_bound(src, spec)
     rho = np.where(valid, spec + src.kd[:, None, None, None], 0.0)
-    return MerlTable(rho.reshape(3, -1), table.valid.copy(), None), {"faded_cells": int(faded)}
+    return MerlTable(rho.reshape(3, -1), table.valid.copy(), None), {
+        "faded_cells": int(faded),
+        "energy_bounded_views": bounded,
+    }
+
+
+def _energy_bound(src: Source, spec) -> int:
+    """Scale ``spec`` (3, TH, TD, PD, in place) so that no analysed view's albedo, floor
+    included, exceeds max(1, the source's there); returns how many view-channel pairs needed it.
+
+    A cell is scaled by c(theta_i) c(theta_o) (symmetric, so the table stays reciprocal), c read
+    linearly between nodes at every other analysed view. With E[k, n, m] the albedo of view k
+    that cells put on nodes n (theta_i) and m (theta_o), view k's albedo is c^T E[k] c exactly,
+    so c is solved on that small array: multiplicative steps move each node's c towards what
+    its views allow, up to 1, which it keeps wherever the bound holds."""
+    views = np.asarray(src.views, float)
+    limit = np.maximum(np.maximum(src.albedo, 1.0) - src.floor_albedo, 0.0)  # (V, 3)
+    valid = src.table.valid
+    checked = sorted(set(range(0, len(views), ENERGY_STRIDE)) | {len(views) - 1})
+    a = directional_albedo(MerlTable(spec.reshape(3, -1), valid, None), views, ENERGY_STRIDE)
+    if np.all(a <= ENERGY_MARGIN * limit[checked]):
+        return 0  # far below the bound on every third view: no view between them reaches it
+    op = get_operator(views)
+    nv = len(views)
+    (ni, fi), (no, fo), owner, nn = _cell_nodes(views)
+    cells = op.cells
+    base = np.repeat(np.arange(nv, dtype=np.int32) * (nn * nn), np.diff(op.offsets))
+    nie, fie, noe, foe = ni[cells], fi[cells], no[cells], fo[cells]
+    combos = []  # the four (theta_i node, theta_o node) corners of each entry, and their weights
+    for di, wi in ((0, 1.0 - fie), (1, fie)):
+        for do, wo in ((0, 1.0 - foe), (1, foe)):
+            idx = base + np.minimum(nie + di, nn - 1) * nn + np.minimum(noe + do, nn - 1)
+            combos.append((idx, (wi * wo) * op.albedo))
+    del nie, fie, noe, foe
+    flat = spec.reshape(3, -1)
+    bounded = 0
+    for ch in range(3):
+        v = np.where(valid[ch], flat[ch], 0.0)[cells]
+        E = np.zeros(nv * nn * nn)
+        for idx, w in combos:
+            E += np.bincount(idx, v * w, nv * nn * nn)
+        E = E.reshape(nv, nn, nn)
+        lim = limit[:, ch]
+        if np.all(E.sum(axis=(1, 2)) <= lim):
+            continue
+        c = _solve_scales(E, lim, owner, nn)
+        bounded += int((E.sum(axis=(1, 2)) > lim).sum())
+        flat[ch] *= _at_cells(c, ni, fi) * _at_cells(c, no, fo)
+    return bounded
+
+
+def _at_cells(c, node, frac):
+    return c[node] * (1.0 - frac) + c[np.minimum(node + 1, len(c) - 1)] * frac
+
+
+def _solve_scales(E, lim, owner, nn, steps=80):
+    """The node scales c in [0, 1] with c^T E[k] c <= lim[k] for every view k, each as large as
+    its views allow: each node moves by the square root of its tightest view's headroom (the
+    albedo is quadratic in c near a view's own node), then, if any view is still over, only
+    downwards until none is."""
+    c = np.ones(nn)
+    albedo = lambda c: np.einsum("knm,n,m->k", E, c, c)  # noqa: E731
+    for step in range(2 * steps):
+        a = albedo(c)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(a > 0.0, lim / a, np.inf)
+        if step >= steps and np.all(r >= 1.0 - 1e-9):
+            break
+        worst = np.full(nn, np.inf)
+        np.minimum.at(worst, owner, r)
+        if step >= steps:
+            worst = np.minimum(worst, 1.0)
+        c = np.clip(c * np.sqrt(np.minimum(worst, 4.0)), 0.0, 1.0)
+    # Whatever remains over (a view whose own nodes are already at 0), scale the lot down.
+    a = albedo(c)
+    over = a > lim
+    if over.any():
+        c *= math.sqrt(float(np.min(lim[over] / a[over])))
+    return c
+
+
+def _cell_nodes(views):
+    """The energy bound's nodes (every other view and the last) and, for each cell, where its
+    theta_i and theta_o fall among them (lower node, fraction towards the next); ``owner``:
+    each view's nearest node. Material independent, kept for the last set of views."""
+    key = np.asarray(views, float).tobytes()
+    if _NODES.get("key") != key:
+        v = np.asarray(views, float)
+        keep = sorted(set(range(0, len(v), 2)) | {len(v) - 1})
+        nodes = v[keep]
+        nn = len(nodes)
+
+        def place(cos):
+            t = np.arccos(np.clip(cos, 0.0, 1.0)).ravel()
+            i0 = np.clip(np.searchsorted(nodes, t, side="right") - 1, 0, nn - 1)
+            nxt = np.minimum(i0 + 1, nn - 1)
+            span = nodes[nxt] - nodes[i0]
+            f = np.where(span > 0, np.clip((t - nodes[i0]) / np.where(span > 0, span, 1.0), 0.0, 1.0), 0.0)
+            return i0.astype(np.int32), f.astype(np.float32)
+
+        ci, co = cell_cosines()
+        owner = np.abs(v[:, None] - nodes[None, :]).argmin(axis=1)
+        _NODES.update(key=key, value=(place(ci), place(co), owner, nn))
+    return _NODES["value"]
+
+
+_NODES: dict = {}
 
 
 def _horizon_fade(src: Source, s, spec):

@@ -166,10 +166,11 @@ def roughness_source(table, prof):
         h.update(repr((a.dtype.str, a.shape)).encode())
         h.update(a.data)
     h.update(repr(prof.split).encode())
+    h.update(np.ascontiguousarray(np.asarray(prof.theta_o, float)).data)
     key = h.hexdigest()
     if _SOURCES.get("key") != key:
         kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
-        src = prepare(table, kd, split=prof.split)
+        src = prepare(table, kd, split=prof.split, views=prof.theta_o)
         _SOURCES.clear()
         _SOURCES.update(key=key, src=src)
     return _SOURCES["src"]

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..blas import one_thread
 from ..fits import LAMBERT_VARIANCE, fit_material
-from ..integrate import get_operator
+from ..integrate import directional_albedo, get_operator
 from ..merl import RES_TD, MerlTable
 from ..profiles import Profiles, compute_profiles
 from . import reciprocal as R
@@ -189,26 +189,6 @@ def _synthesis_key(table: MerlTable, prof: Profiles, fit: dict, vt: ViewTargets)
         h.update(np.ascontiguousarray(prof["avg"][k], "<f8").data)
     h.update(repr((prof.split, fit.get("mu_slope"), fit.get("sigma2"), vt.mode, vt.mu_slope, vt.sigma2)).encode())
     return h.hexdigest()
-
-
-def directional_albedo(table: MerlTable, views=None, stride: int = 1) -> np.ndarray:
-    """(views, 3): integral of rho cos(theta_i) over the hemisphere for each view (default:
-    the profiles' default views); with ``stride``, every stride-th view and the last one only.
-    An edit measures it at its analysed views, with the same operator as its profiles: a second
-    set of views cost a second operator (28 s cold)."""
-    from ..integrate import default_views
-    from ..limits import MAX_ELEVATIONS, check_int
-
-    stride = check_int(stride, "stride", 1, MAX_ELEVATIONS)
-    views = default_views() if views is None else np.asarray(views, float)
-    op = get_operator(views)
-    full = np.where(table.valid, table.rho, 0.0).T
-    ks = sorted(set(range(0, len(views), stride)) | {len(views) - 1})
-    out = np.empty((len(ks), 3))
-    for i, k in enumerate(ks):
-        cells, w = op.albedo_view(k)
-        out[i] = full[cells].T @ np.asarray(w, dtype=float)
-    return out
 
 
 ALBEDO_STRIDE = 3  # the albedo check on every third analysed view (and the last): 30 of 90, 0.1 s
