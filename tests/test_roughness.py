@@ -90,6 +90,21 @@ def test_the_edits_floor_is_the_plastics_true_floor(plastic):
     assert np.all(kd <= prof.kd)
 
 
+def test_a_phong_lobe_over_a_lambertian_keeps_its_floor_and_widens_with_s():
+    """A lobe no microsurface reads exactly, over a floor of 0.1 / pi: the floor is the floor
+    (a misfit relative to the lobe's energy read it as 0, and any edit then spread the diffuse
+    as lobe tail: sigma~^2 x36 at s = 1.2), and sigma~^2 rises with s on either side of 1."""
+    from samples.analytic import Phong
+
+    table = tabulate(Phong(kd=(0.1, 0.1, 0.1), ks=(0.5, 0.5, 0.5), exponent=200.0))
+    prof, fit = measure(table, None)
+    kd, _ = joint_floor(table, prof.kd)
+    np.testing.assert_allclose(kd, 0.1 / math.pi, rtol=1e-3)
+    src = prepare(table, prof.kd, split=prof.split, views=prof.theta_o)
+    got = [measure(scale_roughness(src, s)[0], prof.theta_o, prof.split)[1]["sigma2"] for s in (0.7, 1.4)]
+    assert got[0] < fit["sigma2"] < got[1] < 4.0 * fit["sigma2"]
+
+
 def test_the_floor_of_a_height_correlated_plastic_is_its_true_floor():
     """At the paper's floor such a table reads better as separable: the form is chosen at every
     step of the search, not once at the start."""

@@ -28,11 +28,21 @@ GOLD = (math.sqrt(5.0) - 1.0) / 2.0
 
 
 def floor_misfit(rho_c, valid_c, kd_c, sub=SUBSET, forms=M.FORMS):
-    """The misfit of one channel's rho - kd_c against its microfacet reading, and the masking
-    form read (inf, None: no lobe). rho_c, valid_c: (RES_TH, RES_TD, RES_PD)."""
+    """The misfit of one channel's rho - kd_c against its microfacet reading, in absolute terms
+    (sum of cos_i cos_o (rho - kd - reading)^2), and the masking form read (inf, None: no lobe).
+    Absolute, not relative to the lobe's own energy: a floor left in the lobe adds energy the
+    reading explains well, and a relative misfit rewarded that (a Phong lobe over a Lambertian
+    0.1 read its floor as 0, and every edit then spread the diffuse as lobe tail).
+    rho_c, valid_c: (RES_TH, RES_TD, RES_PD)."""
     spec = np.maximum(rho_c - kd_c, 0.0) * valid_c
-    r = M.read_microfacets(spec[None], valid_c[None], forms=forms, sub=sub, judge=(rho_c - kd_c)[None])
-    return (math.inf, None) if r is None else (r.misfit, r.form)
+    judge = rho_c - kd_c
+    r = M.read_microfacets(spec[None], valid_c[None], forms=forms, sub=sub, judge=judge[None])
+    if r is None:
+        return math.inf, None
+    ci, co = M.cosines(sub)
+    j = np.where(valid_c[:, sub[0], sub[1]], judge[:, sub[0], sub[1]], 0.0)
+    w = np.maximum(ci, 0.0) * np.maximum(co, 0.0)
+    return r.misfit * float(np.sum(w * j * j)), r.form
 
 
 def _golden(f, lo, hi, steps):

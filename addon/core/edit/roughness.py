@@ -88,7 +88,7 @@ def prepare(table: MerlTable, kd_paper, split=True, views=None) -> Source | None
         return None
     gd = reading.gden_cells()
     model_q = reading.fresnel[:, None, :, None] * reading.ndf[None, :, None, None]
-    q = np.where(valid, spec * gd[None], model_q)
+    q = np.where(valid, spec * gd[None], _complete(spec * gd[None], model_q, valid))
     peak = spec.reshape(3, -1).max(axis=1)
     from ..integrate import default_views
 
@@ -97,6 +97,20 @@ def prepare(table: MerlTable, kd_paper, split=True, views=None) -> Source | None
     ones = MerlTable(np.where(table.valid, 1.0, 0.0), table.valid, None)
     floor_albedo = directional_albedo(ones, views) * kd[None, :]
     return Source(table, kd, t, reading, spec, q, peak, views, albedo, floor_albedo)
+
+
+def _complete(q, model_q, valid):
+    """Q where the table is missing (beyond its horizon, read when narrowing): the reading's F D
+    times the table's own ratio to it at the column's last measured theta_h, so a table that
+    falls off faster than its reading near the horizon keeps falling there."""
+    idx = np.arange(RES_TH)[None, :, None, None]
+    last = np.maximum.accumulate(np.where(valid, idx, -1), axis=1)  # last measured row at or below
+    have = last >= 0
+    at = np.take_along_axis(q, np.maximum(last, 0), axis=1)
+    model_at = np.take_along_axis(np.broadcast_to(model_q, q.shape), np.maximum(last, 0), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(model_at > 0.0, at / model_at, 1.0)
+    return model_q * np.where(have, np.clip(np.nan_to_num(ratio, nan=1.0, posinf=1.0), 0.0, 1.0), 1.0)
 
 
 def source_index(s: float):

@@ -56,7 +56,23 @@ class MaterialCurve:
     sigma2: np.ndarray
 
     def usable(self):
-        return np.isfinite(self.mu) & np.isfinite(self.sigma2) & (self.sigma2 > 0)
+        """The points on the curve's one branch through s = 1: finite, and sigma~^2 rising with s
+        outward from the scale nearest 1 (a lobe narrowed below the table's resolution re-fits
+        wider again; that point would make a wider request pick a narrower table)."""
+        ok = np.isfinite(self.mu) & np.isfinite(self.sigma2) & (self.sigma2 > 0)
+        order = np.argsort(self.scales)
+        sc, s2, good = self.scales[order], self.sigma2[order], ok[order]
+        mid = int(np.argmin(np.abs(np.log(np.maximum(sc, 1e-300)))))
+        keep = np.zeros(len(sc), bool)
+        keep[mid] = good[mid]
+        for step in (1, -1):  # outward each way while sigma~^2 keeps moving with s
+            last = mid
+            k = mid + step
+            while keep[mid] and 0 <= k < len(sc) and good[k] and (s2[k] - s2[last]) * step > 0:
+                keep[k], last, k = True, k, k + step
+        out = np.zeros(len(sc), bool)
+        out[order] = keep
+        return out
 
     def scale_for(self, sigma2: float) -> float:
         """The scale at which the curve reaches ``sigma2`` (log-log interpolation; clamped to
@@ -117,7 +133,9 @@ def solve_scale(src: Source, sigma2: float, theta_o, fitted_sigma2: float, split
     """The roughness scale whose table re-fits to ``sigma2``; a ``ScaleSolution`` carrying that
     table and its measurement. ``start``: a first guess (the curve's); ``fitted_sigma2`` is the
     source's own (s = 1)."""
-    lo, hi = S_RANGE
+    # A wider request is a larger scale, a narrower one a smaller: the solve stays on that side
+    # of 1 (beyond the table's resolution sigma~^2 turns back, and a secant could cross to it).
+    lo, hi = (1.0, S_RANGE[1]) if sigma2 > fitted_sigma2 else (S_RANGE[0], 1.0)
     target = math.log(sigma2)
     pts = [(0.0, math.log(fitted_sigma2))]  # (log s, log sigma~^2)
     s = float(np.clip(start if start is not None else first_guess(sigma2, fitted_sigma2), lo, hi))
