@@ -121,7 +121,8 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
             env_path=env_path,
             layout=layout,
             notes=notes,
-            labels=["original", "edited"] + (["(sketch)"] if sketch else []),
+            labels=["measured", _edited_label(state) if edited_path or sketch else "measured"]
+            + (["(sketch)"] if sketch else []),
         )
 
         def work(report_progress):
@@ -219,3 +220,13 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
             render_still(scene, out)
             text += f", rendered to {out}"
         self.report({"INFO"}, text + "".join(f"; {n}" for n in info.notes + job["notes"]))
+
+
+def _edited_label(state):
+    """The edited sphere's label: the moves the sliders make, in their own terms."""
+    from ..addon.blender.live import moves_text
+
+    try:
+        return moves_text(state.slider_targets(), state.fit())
+    except ValueError:  # a slider outside its range: Apply says which
+        return "edited"

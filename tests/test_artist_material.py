@@ -241,6 +241,17 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     np.testing.assert_allclose(after[body, l1 : l1 + d, :3], want[12:], rtol=1e-5, atol=1e-6)
     # a wider lobe: the highlight drops
     assert after[body, l1 : l1 + d, :3].max() < before[body, l1 : l1 + d, :3].max()
+    # the edited sphere says which moves it shows: its label strip is redrawn, the measured one's kept
+    fit = state.fit()
+    assert live.moves_text(EditTargets(sigma2=state.sigma2), fit) == "σ²×2.00"
+    assert live.moves_text(EditTargets(sigma2=fit["sigma2"] * 0.5, mu_slope=fit["mu_slope"] + 0.05), fit) == (
+        "σ²×0.50 μ+0.05"
+    )
+    assert live.moves_text(EditTargets(roughness=1.5, strength=0.8), fit) == "roughness×1.50 α×0.80"
+    assert live.moves_text(EditTargets(), fit) == "no moves"
+    strip = slice(0, top)
+    assert not np.array_equal(after[strip, l1 : l1 + d], before[strip, l1 : l1 + d])
+    np.testing.assert_array_equal(after[strip, : l0 + d], before[strip, : l0 + d])
 
 
 def test_the_sliders_start_at_the_fits_even_below_minus_one(artist):

@@ -22,7 +22,34 @@ from . import lifecycle
 
 DEBOUNCE = 0.1  # seconds of quiet after a slider move before the work starts
 POLL = 0.05
-LABELS = {"live": "edited (live)", "refined": "edited (one round)", "applied": "edited (applied)"}
+LABELS = {"live": "live", "refined": "refined", "applied": "applied"}
+
+
+def moves_text(targets, fit) -> str:
+    """The moves an edit makes, in the sliders' terms, for the edited sphere's label (the font
+    has no combining tilde: sigma~^2 is written σ²)."""
+    parts = []
+    if targets.roughness is not None:
+        parts.append(f"roughness×{targets.roughness:.2f}")
+    elif targets.sigma2 is not None and fit.get("sigma2"):
+        parts.append(f"σ²×{targets.sigma2 / fit['sigma2']:.2f}")
+    if targets.mu_slope is not None and fit.get("mu_slope") is not None:
+        parts.append(f"μ{targets.mu_slope - fit['mu_slope']:+.2f}")
+    if targets.strength != 1.0:
+        parts.append(f"α×{targets.strength:.2f}")
+    if tuple(targets.colour) != (1.0, 1.0, 1.0):
+        parts.append("tint")
+    if targets.grazing_boost != 1.0:
+        parts.append(f"grazing×{targets.grazing_boost:.2f}")
+    return " ".join(parts) or "no moves"
+
+
+def sphere_label(moves: str, stage: str, width: int) -> str:
+    """'<moves> <stage>' if it fits ``width`` pixels at the label's scale, else the moves alone."""
+    from .plot_font import text_width
+
+    full = f"{moves} {LABELS[stage]}"
+    return full if text_width(full) <= width else moves
 
 
 def preview_image_name(mat):
@@ -45,7 +72,8 @@ def label_image(rgba, layout, labels):
     scale = max(1, layout.diameter // 100)
     for left, text in zip(layout.lefts, labels):
         w = text_width(text, scale)
-        x = left + max((layout.diameter - w) // 2, 0)
+        # centred over the sphere, spilling into its cell's margin if longer, inside the image
+        x = min(max(left + (layout.diameter - w) // 2, 0), max(layout.width - w, 0))
         y = max(layout.top - 9 * scale, 1)
         rgba[y - 1 : y + 8 * scale, max(x - 1, 0) : x + w + 1] = (0.0, 0.0, 0.0, 1.0)  # a dark box: legible anywhere
         draw_text(rgba, x, y, text, (1.0, 1.0, 1.0), scale)
@@ -111,12 +139,15 @@ def _job(mat):
         return None  # a slider outside its declared range: Apply says which
     w, h = img.size
     layout = sphere_layout(w, h, 2)
+    fit = state.fit()
     return dict(
+        moves=moves_text(targets, fit),
+        cell=w // 2,
         mat=mat.name,
         source=source,
         targets=targets,
         prof=state.profiles(),
-        fit=state.fit(),
+        fit=fit,
         region=state.region(),  # Apply's: so that its synthesis is the one kept here
         env=load_environment(resolve_environment(state.preview_env or None)),
         d=layout.diameter,
@@ -146,7 +177,7 @@ def update_now(mat, refine=False):
     first = []
 
     def post(stage, rgb, cov):
-        replace_sphere(mat, 1, rgb, cov, LABELS[stage])
+        replace_sphere(mat, 1, rgb, cov, sphere_label(job["moves"], stage, job["cell"]))
         if not first:
             first.append(time.perf_counter() - t0)
 
@@ -178,7 +209,7 @@ def slider_moved(mat):
 
         def post(stage, rgb, cov):
             with _LOCK:
-                _POSTED.append((name, gen, stage, rgb, cov))
+                _POSTED.append((name, gen, stage, rgb, cov, sphere_label(job["moves"], stage, job["cell"])))
 
         _start(lambda: _work(job, stale=lambda: _GEN.get(name) != gen, post=post))
         return None
@@ -234,7 +265,7 @@ def show_applied(mat, path):
 
         rgb, cov = bake_sphere(TableBRDF(read_merl(path), job["prof"]), job["env"], job["d"], FINAL_SAMPLES, 0)
         with _LOCK:
-            _POSTED.append((name, gen, "applied", rgb, cov))
+            _POSTED.append((name, gen, "applied", rgb, cov, sphere_label(job["moves"], "applied", job["cell"])))
 
     _start(task)
 
@@ -243,10 +274,10 @@ def _apply_posted():
     with _LOCK:
         posted = list(_POSTED)
         _POSTED.clear()
-    for name, gen, stage, rgb, cov in posted:
+    for name, gen, stage, rgb, cov, label in posted:
         mat = bpy.data.materials.get(name)
         if mat is None or _GEN.get(name) != gen and stage != "live":
             continue
-        replace_sphere(mat, 1, rgb, cov, LABELS[stage])
+        replace_sphere(mat, 1, rgb, cov, label)
     busy = any(t.name == "brdf_moments: live preview" and t.is_alive() for t in threading.enumerate())
     return POLL if busy or posted else None
