@@ -217,7 +217,7 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
             guard_output(
                 out, [info.environment, source_file(bpy.path.abspath(state.source_path)), state.edited_path]
             )  # checked again: the map, the tables are inputs
-            render_still(scene, out)
+            render_still(scene, out, labels=labels)
             text += f", rendered to {out}"
         self.report({"INFO"}, text + "".join(f"; {n}" for n in info.notes + job["notes"]))
 

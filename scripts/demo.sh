@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up, then run the main job on the built-in sample through the extension's operators:
-# analyse, edit, export, and render the original | edited preview; results go to out/.
+# analyse, edit, export, and render the measured | edited preview; results go to out/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh

@@ -375,10 +375,10 @@ def quiet_stdout():
         os.close(saved)
 
 
-def render_still(scene, out_path, quiet=False):
+def render_still(scene, out_path, quiet=False, labels=None):
     """Render the scene to ``out_path``: .png display-referred (Standard view, sRGB, 8-bit RGBA),
     .exr linear scene radiance (32-bit float RGBA). Written atomically. ``quiet`` keeps
-    Blender's progress lines off stdout."""
+    Blender's progress lines off stdout; ``labels``: one per sphere, drawn above it."""
     from ...core.atomic import atomic_path
 
     ext = os.path.splitext(os.fspath(out_path))[1].lower()
@@ -406,4 +406,26 @@ def render_still(scene, out_path, quiet=False):
             bpy.ops.render.render(write_still=True, scene=scene.name)
         if not os.path.exists(tmp) or os.path.getsize(tmp) == 0:
             raise RuntimeError(f"{out_path}: Blender wrote no image")
+        if labels:
+            _label_file(tmp, labels)
     return os.path.abspath(out_path)
+
+
+def _label_file(path, labels):
+    """Draw the spheres' labels into the image file at ``path`` (rewritten in its own format)."""
+    import numpy as np
+
+    from ...core.render import sphere_layout
+    from ..live import label_image
+
+    img = bpy.data.images.load(path, check_existing=False)
+    try:
+        w, h = img.size
+        buf = np.empty(w * h * 4, np.float32)
+        img.pixels.foreach_get(buf)
+        rgba = label_image(buf.reshape(h, w, 4)[::-1].copy(), sphere_layout(w, h, len(labels)), labels)
+        img.pixels.foreach_set(np.ascontiguousarray(rgba[::-1]).ravel())
+        img.filepath_raw = path
+        img.save()
+    finally:
+        bpy.data.images.remove(img)
