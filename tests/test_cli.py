@@ -191,8 +191,10 @@ def test_edit_takes_relative_moves_and_reports_the_operator(tmp_path):
     fitted = fit_material(compute_profiles(read_merl(src)))["sigma2"]
     out = tmp_path / "half.binary"
     report = tmp_path / "half.json"
-    res = run("edit", src, "--out", str(out), "--sigma2", "x0.5", "--report", str(report))
+    plot = tmp_path / "half.png"
+    res = run("edit", src, "--out", str(out), "--sigma2", "x0.5", "--report", str(report), "--plot", str(plot))
     assert res.returncode == 0, res.stderr
+    assert plot.stat().st_size > 10_000 and plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "operator  roughness x" in res.stdout and "masking separable" in res.stdout
     assert "re-read   mean slope" in res.stdout
     got = fit_material(compute_profiles(read_merl(out)))["sigma2"]
@@ -207,3 +209,5 @@ def test_edit_takes_relative_moves_and_reports_the_operator(tmp_path):
     res = run("edit", src, "--out", str(tmp_path / "bad.binary"), "--mu-by", "5")
     assert res.returncode == 2 and "must be within" in res.stderr
     assert not (tmp_path / "bad.binary").exists()
+    res = run("edit", src, "--out", str(tmp_path / "p.binary"), "--sigma2", "x0.5", "--plot", src)
+    assert res.returncode != 0 and read_merl(src).rho.size  # the plot may not overwrite the input

@@ -331,6 +331,9 @@ def test_an_apply_in_the_reopened_file(lane):
     # The live preview ran for these sliders before Apply, so Apply wrote its kept synthesis:
     # the synthesis stage (progress 3/10 to 6/10) is a lookup, not a solve (3-5 s here).
     assert data["live_before_quiet_apply"]
+    # The slider's move redrew the edited sphere the artist sees above the sliders (its
+    # screenshot, 13-live.png or the like, shows them in the Edit section).
+    assert st["live"]["changed"] and os.path.isfile(st["live"]["shot"]), st["live"]
     assert data["preview_changed_by_apply"]  # the written table, baked into the preview
     at = {(d, t): m for m, d, t in quiet["job"]["marks"]}
     synthesis = at[(6, 10)] - at[(3, 10)]

@@ -366,9 +366,13 @@ def _draw_announced(layout, state, cells=None):
 
 
 def draw_edit(layout, mat, cells):
-    """The sliders, what Apply will use, the reachable region, Reset and Apply."""
+    """The spheres (measured, edited live), the sliders, what Apply will use, the reachable
+    region, Reset and Apply."""
     state = mat.brdf_moments
     col = layout.column()
+    # The spheres are the artist's feedback while the sliders move: right above them, in sight
+    # whenever the sliders are (the Preview section below holds how they are rendered).
+    _draw_spheres(col, mat, cells)
     for attr in ("strength", "grazing_boost", "mu_slope"):
         rna = state.bl_rna.properties[attr]
         prop(col, cells, state, attr, shown=f"{rna.name}  {_value(state, attr)}")
@@ -512,7 +516,7 @@ def draw_result(layout, mat, cells):
 
 
 def draw_preview(layout, mat, cells):
-    """Original and edited spheres under an HDRI: how it is rendered, Build Preview, the image."""
+    """How the spheres (shown in Edit, above the sliders) are rendered, and Build Preview."""
     state = mat.brdf_moments
     col = layout.column()
     if osl_supported():
@@ -539,9 +543,15 @@ def draw_preview(layout, mat, cells):
     op.material, op.use_panel_settings = mat.name, True
     if pimg is not None:
         row.operator("brdf_moments.show_image", text="", icon="FULLSCREEN_ENTER").image = pimg.name
-        thumb = thumbnail_icon(mat)
-        if thumb is not None:
-            col.template_icon(icon_value=thumb, scale=(int(cells.w) + 0.5) / ui_unit())
+
+
+def _draw_spheres(col, mat, cells):
+    """The preview's thumbnail at the panel's width, once Build Preview has made one."""
+    if bpy.data.images.get(preview_image_name(mat)) is None:
+        return
+    thumb = thumbnail_icon(mat)
+    if thumb is not None:
+        col.template_icon(icon_value=thumb, scale=(int(cells.w) + 0.5) / ui_unit())
 
 
 def draw_export(layout, mat, cells):
@@ -584,8 +594,7 @@ def draw_details(layout, mat, cells):
 SECTIONS = (
     ("fits", "Fits", draw_fits, set()),
     ("chart", "Chart", draw_chart, set()),
-    ("edit", "Edit", draw_edit, set()),
-    # The spheres are the artist's feedback while the sliders move: open, right under them.
+    ("edit", "Edit", draw_edit, set()),  # the spheres on top: in sight beside the sliders
     ("preview", "Preview", draw_preview, set()),
     ("result", "Result", draw_result, set()),
     ("export", "Export", draw_export, {"DEFAULT_CLOSED"}),

@@ -249,12 +249,14 @@ def _check_written(path, res, prof):
     from ..core.merl import read_merl
 
     got_prof, got_fit = measure(read_merl(path), prof.theta_o, prof.split)
+    got_prof.name = prof.name
     d = against_announcement(res.profiles, got_prof)
     print(
         f"re-read   mean slope {got_fit['mu_slope']:+.4f}  variance {got_fit['sigma2']:.5f}; per view against the "
         f"announcement ({d['judged']} views x channels, the worst): energy {100 * d['view_energy']:.2f} %, "
         f"variance {100 * d['view_var']:.2f} %, mean {d['view_mean']:.4f} rad"
     )
+    return got_prof
 
 
 def cmd_edit(args):
@@ -266,6 +268,8 @@ def cmd_edit(args):
     _guard(args.out, args.file)
     if args.report:
         _guard(args.report, args.file, args.out)
+    if args.plot:
+        _guard(args.plot, args.file, args.out, *([args.report] if args.report else []))
     table = read_table(args.file)
     from ..core.fits import fit_material
     from ..core.profiles import compute_profiles
@@ -330,8 +334,14 @@ def cmd_edit(args):
                 + (f", {len(c.excluded_deg)} out of reach" if c.excluded_deg else "")
                 + ")"
             )
+    got = _check_written(args.out, res, prof) if res.operator or args.plot else None
+    if args.plot:
+        from .plots import plot_profiles
+
+        title = f"{prof.name or args.file}: the written table re-read (per channel) over measured (grey), announced dashed orange"
+        plot_profiles(got, args.plot, title=title, measured=prof, announced=res.profiles)
+        print(f"wrote {args.plot}")
     if res.operator:
-        _check_written(args.out, res, prof)
         op = res.operator
         print(
             f"operator  roughness x{op['roughness_scale']:.4f}, floor (r, g, b) "
@@ -477,6 +487,11 @@ def build_parser():
         "--report",
         help="also write the per-view promise and what the table re-measures to (JSON: theta_o, judged, "
         "out_of_reach, clamped, announced, target and achieved per channel)",
+    )
+    se.add_argument(
+        "--plot",
+        help="also write a PNG of the written table's profiles (re-read from the file, per channel) over the "
+        "measured ones (grey), with the announced ones (dashed orange)",
     )
     _floor_option(se)
     se.set_defaults(func=cmd_edit)

@@ -27,10 +27,11 @@ def save_figure(fig, path, dpi=110):
         fig.savefig(tmp, dpi=dpi, format="png")
 
 
-def plot_profiles(prof, path, title=None, measured=None):
+def plot_profiles(prof, path, title=None, measured=None, announced=None):
     """One figure: energy, mean, variances, skewness, excess kurtosis against theta_o.
     ``measured``: the source's profiles, drawn beneath as thick grey lines (channel average), so
-    an edited table's profiles read against what they came from."""
+    an edited table's profiles read against what they came from; ``announced``: what an edit
+    announced (channel average), drawn as a dashed orange line over them."""
     plt, fig, axes = _figure(2, 3, (13, 7.5))
     deg = np.degrees(prof.theta_o)
     panels = [
@@ -57,6 +58,18 @@ def plot_profiles(prof, path, title=None, measured=None):
                         color="#b0b0b0",
                         lw=3.2,
                         label="measured (avg)" if style == "-" else None,
+                    )
+        if announced is not None:
+            for key, style in series:
+                if key in announced["avg"]:
+                    ax.plot(
+                        np.degrees(announced.theta_o),
+                        announced["avg"][key],
+                        ls=(0, (4, 3)),
+                        color="#e07000",
+                        lw=1.0,
+                        zorder=5,
+                        label="announced (avg)" if style == "-" else None,
                     )
         for ch, (colour, name) in CHANNEL_STYLE.items():
             for key, style in series:

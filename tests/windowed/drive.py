@@ -619,6 +619,7 @@ def session():
         if not [t for t in threading.enumerate() if t.name == "brdf_moments: live preview" and t.is_alive()]:
             break
         yield 0.1
+    before_live = preview_digest()
     s.sigma2 = s.fit_sigma2 * 1.3
     # The artist looks at the live preview until it settles, then presses Apply.
     live_seen = False
@@ -629,6 +630,10 @@ def session():
         if live_seen and not live:
             break
     result["live_before_quiet_apply"] = live_seen
+    # What the artist sees then: the spheres above the sliders, the edited one redrawn.
+    redraw()
+    yield 0.5
+    record("live", changed=preview_digest() != before_live, shot=screenshot("live"))
     before = preview_digest()
     status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
     yield from wait_jobs()
