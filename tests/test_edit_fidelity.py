@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from addon.core.edit import EditTargets, edit, view_targets
+from addon.core.edit import EditTargets, edit
 from addon.core.edit.fidelity import measure
 from addon.core.fits import fit_material
 from addon.core.geometry import view_centred
@@ -238,28 +238,3 @@ def test_an_energy_edit_of_a_broad_lobe_promises_its_own_variance(sample_table):
         res = edit(table, t, prof, fit)
         assert res.target_sigma2 == fit["sigma2"] and not res.warnings
         assert res.fidelity.worst("variance_worst") < 1e-4 and res.fidelity.worst("energy") < 1e-4
-
-
-def test_target_defect_tells_reciprocal_targets_from_contradictory_ones(sample_table):
-    """The identity's targets are the table itself (defect 0 at every view); a narrow lobe (phong)
-    widened keeps its targets nearly reciprocal (the lobe stays on the mirror); moved off the
-    mirror at every view it cannot be (two views ask different values of the cells they share),
-    more so at grazing views, where the move is larger."""
-    from addon.core.edit.reach import target_defect
-    from addon.core.edit.targets import resolve_targets
-
-    table = sample_table("phong")
-    prof = compute_profiles(table)
-    fit = fit_material(prof)
-
-    def defect(t):
-        mu, s2, _ = resolve_targets(t, fit)
-        return target_defect(table, prof, view_targets(prof, fit, t, mu, s2))
-
-    theta = np.degrees(prof.theta_o)
-    mid = (theta >= 5) & (theta <= 80)
-    assert np.abs(defect(EditTargets(strength=1.0))).max() < 1e-9
-    wide = defect(EditTargets(sigma2=fit["sigma2"] * 1.5))[mid]
-    moved = defect(EditTargets(mu_slope=fit["mu_slope"] + 0.05))[mid]
-    assert np.median(wide) < 0.1
-    assert np.median(moved) > 0.5 and moved[-1] > 4 * moved[0]

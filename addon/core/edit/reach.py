@@ -11,8 +11,9 @@ A view's target is out of reach when no table can hold it:
 The slider-level region (``reachable_region``) is where at least ``MIN_REACHABLE`` of the counted
 views are in reach; a request outside it is clamped to the nearest point inside.
 
-``target_defect`` measures per view how far warp targets are from any reciprocal table; the
-benchmark reports it beside the per-view figures (not yet part of the reach test).
+Warp mode's region is the roughness edit's (``solve.roughness_region``: the material's curve
+widened by the tilt's reach); this one serves model mode (the paper's sketch) and the tilt's
+per-view targets.
 """
 
 from __future__ import annotations
@@ -233,77 +234,3 @@ def reachable_region(prof, fit, n_sigma=41, n_mu=161, mode="warp") -> ReachableR
     smin = float(grid[have].min()) if have.any() else s0
     smax = float(grid[have].max()) if have.any() else s0
     return ReachableRegion(grid, lo, hi, smin, smax, (m0, s0))
-
-
-def target_defect(table, prof, vt, n_u=25, n_v=13, stride=1):
-    """Per view: how far warp targets are from any reciprocal table.
-
-    Warp mode promises each view's measured slice moved and scaled in the view-centred
-    (theta, phi) coordinates (shape kept): a target BRDF rho*(w_i; w_o) built view by view from
-    the measured table. A reciprocal table has rho(w_i, w_o) = rho(w_o, w_i); rho* need not. The
-    defect of view w_o is the energy-weighted mean of |log(rho*(w_i; w_o) / rho*(w_o; w_i))| over
-    its target slice: 0 for the identity, small where every view's target can hold at once, large
-    where two views ask different values of the cells they share (a narrow lobe moved off the
-    mirror; a broad lobe narrowed about the normal). Average channel, nearest-cell lookups; each
-    slice sampled on an n_u x n_v grid spanning +-4 of its target widths (narrow lobes too), every
-    ``stride``-th view (the others interpolated)."""
-    from ..geometry import view_centred, view_centred_angles
-    from ..merl import MerlTable, lookup
-
-    theta = np.asarray(prof.theta_o, float)
-    p = prof["avg"]
-    kd = np.asarray(prof.kd, float) if prof.split else np.zeros(3)
-    spec = MerlTable(np.maximum(table.rho - kd[:, None], 0.0) * table.valid, table.valid, None)
-    mu0 = np.nan_to_num(np.asarray(p["mu_theta"], float))
-    a0 = np.nan_to_num(np.asarray(p["alpha"], float))
-    s_tt = np.nan_to_num(np.asarray(p["sigma_tt"], float), nan=1.0)
-    s_pp = np.nan_to_num(np.asarray(p["sigma_pp"], float), nan=1.0)
-    var0 = 0.5 * (s_tt + s_pp)
-    mu1, a1 = vt.mean.mean(axis=1), vt.alpha.mean(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.nan_to_num(vt.variance.mean(axis=1) / var0, nan=1.0, posinf=1.0)
-
-    def target(t, f, e):
-        """rho*(m(t, f); view of elevation e), the view's measured slice moved and scaled."""
-        m0, m1, r, at, am = (np.interp(e, theta, v) for v in (mu0, mu1, ratio, a1, a0))
-        sr = np.sqrt(np.maximum(r, 1e-12))
-        t0, f0 = m0 + (t - m1) / sr, f / sr
-        inside = (np.abs(t0) < HALF_PI) & (np.abs(f0) < HALF_PI)
-        wo = np.stack([np.sin(e), np.zeros_like(e), np.cos(e)], axis=-1)
-        rho = lookup(spec, view_centred(t0, f0), wo)[0].mean(axis=0) * inside
-        # density in (theta, phi): rho cos(theta_i) cos(phi) / alpha, scaled by 1/r; back to rho*
-        dens = rho * np.cos(t0) * np.cos(f0) ** 2 / np.maximum(am, 1e-300) / np.maximum(r, 1e-12)
-        return at * dens / np.maximum(np.cos(t) * np.cos(f) ** 2, 1e-9)
-
-    u = np.linspace(-4.0, 4.0, n_u)
-    v = np.linspace(-4.0, 4.0, n_v)
-    U, W = np.meshgrid(u, v, indexing="ij")
-    views = np.arange(0, len(theta), max(int(stride), 1))
-    if views[-1] != len(theta) - 1:
-        views = np.append(views, len(theta) - 1)
-    out = np.zeros(len(views))
-    for n, k in enumerate(views):
-        e = theta[k]
-        T = mu1[k] + np.sqrt(max(ratio[k] * s_tt[k], 1e-12)) * U
-        F = np.sqrt(max(ratio[k] * s_pp[k], 1e-12)) * W
-        keep = (np.abs(T) < HALF_PI - 1e-3) & (np.abs(F) < HALF_PI - 1e-3)  # the hemisphere's nodes only
-        if not keep.any():
-            continue
-        T, F = T[keep], F[keep]
-        fwd = target(T, F, np.full(T.shape, e))
-        x = view_centred(T, F)
-        elev = np.arccos(np.clip(x[..., 2], -1.0, 1.0))
-        az = np.arctan2(x[..., 1], x[..., 0])
-        # The swapped pair: w_o seen from the view w_i, turned about the normal so that w_i has
-        # azimuth 0 (isotropy).
-        c, s_ = np.cos(az), np.sin(az)
-        turned = np.stack([c * np.sin(e), -s_ * np.sin(e), np.full(az.shape, np.cos(e))], axis=-1)
-        back = target(*view_centred_angles(turned), elev)
-        # Energy weights: rho* cos(theta_i) dw on the grid (uniform in theta, phi). rho* itself
-        # grows without bound toward the horizon (1 / cos theta_i), so the floor is set against
-        # the slice's energy-weighted value, not its largest.
-        w = fwd * np.cos(T) * np.cos(F) ** 2
-        floor = 1e-6 * max(float((w * fwd).sum() / max(float(w.sum()), 1e-300)), 1e-300)
-        d = np.abs(np.log(np.maximum(fwd, floor) / np.maximum(back, floor)))
-        out[n] = float((w * d).sum() / max(float(w.sum()), 1e-300))
-    return np.interp(theta, theta[views], out)
