@@ -199,7 +199,10 @@ def test_edit_takes_relative_moves_and_reports_the_operator(tmp_path):
     assert "re-read   mean slope" in res.stdout
     got = fit_material(compute_profiles(read_merl(out)))["sigma2"]
     assert got == pytest.approx(0.5 * fitted, rel=0.01)
-    op = json.loads(report.read_text())["operator"]
+    rep = json.loads(report.read_text())
+    # the announcement is the table's own measurement: no judged view is out of its reach
+    assert any(rep["judged"]) and not any(rep["out_of_reach"])
+    op = rep["operator"]
     assert 0.5 < op["roughness_scale"] < 0.7 and op["masking"] == "separable" and not op["clamped"]
     for bad, says in (("x0", "above 0"), ("xabc", "not a number"), ("x-1", "above 0")):
         res = run("edit", src, "--out", str(tmp_path / "bad.binary"), "--sigma2", bad)
