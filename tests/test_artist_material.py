@@ -249,6 +249,7 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     )
     assert live.moves_text(EditTargets(roughness=1.5, strength=0.8), fit) == "roughness×1.50 α×0.80"
     assert live.moves_text(EditTargets(), fit) == "no moves"
+    assert live.moves_text(EditTargets(mu_slope=fit["mu_slope"] + 0.002, sigma2=fit["sigma2"]), fit) == "no moves"
     strip = slice(0, top)
     assert not np.array_equal(after[strip, l1 : l1 + d], before[strip, l1 : l1 + d])
     np.testing.assert_array_equal(after[strip, : l0 + d], before[strip, : l0 + d])

@@ -71,15 +71,18 @@ def test_the_preview_thumbnail_is_the_preview_image_srgb_encoded(analysed):
     lit = (want[..., 3] > 0.99) & (want[..., 0] > 0.2) & (want[..., 0] < 0.9)
     assert lit.any() and np.abs(want[lit, 0] - np.clip(linear[lit, 0], 0, 1)).max() > 0.1
     assert ((want[..., 3] > 0.01) & (want[..., 3] < 0.99)).any()
-    # The panel shows that icon, and no image's own preview.
+    # The panel shows that icon at the top of Edit, above the sliders, and no image's own preview.
     from importlib import import_module
 
     from tests.test_operators import _Recorder
 
     log = []
-    import_module("bl_ext.bmtest.brdf_moments.addon.blender.panel").draw_preview(_Recorder(bpy, log), mat, _Cells())
+    panel = import_module("bl_ext.bmtest.brdf_moments.addon.blender.panel")
+    panel.draw_edit(_Recorder(bpy, log), mat, _Cells())
     shown = [k["icon_value"] for name, _, k in (e for e in log if e[0] == "template_icon")]
     assert shown == [icons.icon_id(icons.thumbnail_key("Thumb"))]
+    first_slider = next(i for i, e in enumerate(log) if e[0] == "prop")
+    assert next(i for i, e in enumerate(log) if e[0] == "template_icon") < first_slider
 
 
 class _Cells:
@@ -149,3 +152,29 @@ def test_blender_is_never_asked_for_an_images_preview(analysed):
     ours = [img for img in bpy.data.images if img.name.startswith("BRDF Moments")]
     assert {"BRDF Moments plot: Thumb", "BRDF Moments preview: Thumb"} <= {img.name for img in ours}
     assert [img.name for img in ours if img.preview is not None] == []
+
+
+def test_the_preview_image_is_in_the_saved_file(analysed, tmp_path):
+    """A generated image's pixels are not saved with the file: reopened, the preview's measured
+    sphere was black (only the edited one was redrawn live). The preview is packed and reads
+    back exactly, premultiplied; so is a plot (8-bit)."""
+    bpy, mat = analysed
+    live = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.live"]
+    images = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.images"]
+    rng = np.random.default_rng(11)
+    alpha = rng.uniform(0.0, 1.0, (24, 48, 1))
+    rgba = np.concatenate([rng.uniform(0.0, 4.0, (24, 48, 3)) * alpha, alpha], axis=2).astype(np.float32)
+    live.write_preview_image(mat, rgba)
+    plot = (rng.integers(0, 256, (20, 30, 4)) / 255.0).astype(np.float32)
+    plot[..., 3] = 1.0
+    images.keep_image("BRDF Moments test plot", plot)
+    path = str(tmp_path / "saved.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    got = live.read_preview_image(bpy.data.materials["Thumb"])
+    np.testing.assert_array_equal(got, rgba)
+    img = bpy.data.images["BRDF Moments test plot"]
+    buf = np.empty(30 * 20 * 4, np.float32)
+    img.pixels.foreach_get(buf)
+    assert np.abs(buf.reshape(20, 30, 4)[::-1] - plot).max() < 1e-6

@@ -12,18 +12,31 @@ from . import lifecycle
 
 
 def keep_image(name, rgba, float_buffer=False):
-    """The image ``name`` holding ``rgba`` ((H, W, 4), row 0 on top), kept in the .blend (fake
-    user); made anew when its size or kind changed."""
+    """The image ``name`` holding ``rgba`` ((H, W, 4), row 0 on top; premultiplied when
+    ``float_buffer``), kept in the .blend (fake user, packed: a generated image's pixels are not
+    saved, and a reopened file showed the preview's measured sphere black); made anew when its
+    size or kind changed."""
     h, w = rgba.shape[:2]
     img = bpy.data.images.get(name)
-    if img is not None and (tuple(img.size) != (w, h) or bool(img.is_float) != float_buffer):
+    if img is not None and (
+        tuple(img.size) != (w, h)
+        or bool(img.is_float) != float_buffer
+        or (float_buffer and img.alpha_mode != "PREMUL")  # an older file's: it would pack wrong
+    ):
         bpy.data.images.remove(img)
         img = None
     if img is None:
         img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=float_buffer)
+        # Packed as EXR (premultiplied: read back exactly) or PNG (the plots' bytes); set before
+        # any pixel goes in (changing the alpha mode later reinterprets the buffer).
+        if float_buffer:
+            img.alpha_mode, img.file_format = "PREMUL", "OPEN_EXR"
+        else:
+            img.file_format = "PNG"
     img.pixels.foreach_set(np.ascontiguousarray(rgba[::-1], np.float32).ravel())  # Blender's rows start at the bottom
     img.update()
     img.use_fake_user = True
+    img.pack()
     # No Image.preview: Blender would render it in a job thread from this buffer, which the next
     # call rewrites or frees (the panel shows icons of its own, see icons.py).
     return img

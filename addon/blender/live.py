@@ -31,10 +31,13 @@ def moves_text(targets, fit) -> str:
     parts = []
     if targets.roughness is not None:
         parts.append(f"roughness×{targets.roughness:.2f}")
-    elif targets.sigma2 is not None and fit.get("sigma2"):
+    elif targets.sigma2 is not None and fit.get("sigma2") and f"{targets.sigma2 / fit['sigma2']:.2f}" != "1.00":
         parts.append(f"σ²×{targets.sigma2 / fit['sigma2']:.2f}")
+    # a move that shows as 0.00 is none (a slider held at -1 for a fitted -1.002)
     if targets.mu_slope is not None and fit.get("mu_slope") is not None:
-        parts.append(f"μ{targets.mu_slope - fit['mu_slope']:+.2f}")
+        move = f"{targets.mu_slope - fit['mu_slope']:+.2f}"
+        if move not in ("+0.00", "-0.00"):
+            parts.append(f"μ{move}")
     if targets.strength != 1.0:
         parts.append(f"α×{targets.strength:.2f}")
     if tuple(targets.colour) != (1.0, 1.0, 1.0):

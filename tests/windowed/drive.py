@@ -588,7 +588,7 @@ def session():
     blend = os.path.join(OUT, "session.blend")
     with override():
         bpy.ops.wm.save_as_mainfile(filepath=blend)
-    record("save", blend=blend)
+    record("save", blend=blend, preview=preview_digest())
     with override():
         bpy.ops.wm.open_mainfile(filepath=blend)
     yield 1.0
@@ -599,7 +599,7 @@ def session():
     area("PROPERTIES").spaces.active.context = "MATERIAL"
     redraw()
     yield 0.5
-    record("reopen", reopened_scene=reopened_scene, shot=screenshot("reopened"))
+    record("reopen", reopened_scene=reopened_scene, preview=preview_digest(), shot=screenshot("reopened"))
     yield from panel_shot("reopened")
 
     # An Apply as an artist makes it in the reopened file: a new slider value, Apply, then wait
