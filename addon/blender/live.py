@@ -48,7 +48,8 @@ def moves_text(targets, fit) -> str:
 
 
 def sphere_label(moves: str, stage: str, width: int) -> str:
-    """'<moves> <stage>' if it fits ``width`` pixels at the label's scale, else the moves alone."""
+    """'<moves> <stage>' if it fits ``width`` pixels at the label's scale, else the moves alone
+    (``label_image`` drops further words that do not fit)."""
     from .plot_font import text_width
 
     full = f"{moves} {LABELS[stage]}"
@@ -69,16 +70,30 @@ def upsample(tile, d):
 
 
 def label_image(rgba, layout, labels):
-    """Sphere labels drawn into the (H, W, 4) top-row-first image, above each sphere."""
+    """Sphere labels drawn into the (H, W, 4) top-row-first image, above each sphere, each within
+    its own cell (words dropped from the end until it fits); a label of None is left as it is.
+    The cell's margins under the label are cleared first, so a longer label drawn there before
+    leaves nothing behind."""
     from .plot_font import draw_text, text_width
 
     scale = max(1, layout.diameter // 100)
-    for left, text in zip(layout.lefts, labels):
+    cell = layout.width / max(layout.count, 1)
+    d, top = layout.diameter, layout.top
+    for k, (left, text) in enumerate(zip(layout.lefts, labels)):
+        if text is None:
+            continue
+        x0, x1 = int(round(k * cell)), int(round((k + 1) * cell))
+        while text_width(text, scale) > x1 - x0 and " " in text:
+            text = text.rsplit(" ", 1)[0]
+        text = text[: max((x1 - x0) // text_width("x", scale), 0)]
         w = text_width(text, scale)
-        # centred over the sphere, spilling into its cell's margin if longer, inside the image
-        x = min(max(left + (layout.diameter - w) // 2, 0), max(layout.width - w, 0))
-        y = max(layout.top - 9 * scale, 1)
-        rgba[y - 1 : y + 8 * scale, max(x - 1, 0) : x + w + 1] = (0.0, 0.0, 0.0, 1.0)  # a dark box: legible anywhere
+        y = max(top - 9 * scale, 1)
+        y1 = y + 8 * scale
+        rgba[: min(top, y1), x0:x1] = 0.0  # the margin above the sphere
+        rgba[top:y1, x0:left] = 0.0  # and beside it
+        rgba[top:y1, left + d : x1] = 0.0
+        x = min(max(left + (d - w) // 2, x0), max(x1 - w, x0))  # over the sphere, inside its cell
+        rgba[y - 1 : y1, max(x - 1, 0) : x + w + 1] = (0.0, 0.0, 0.0, 1.0)  # a dark box: legible anywhere
         draw_text(rgba, x, y, text, (1.0, 1.0, 1.0), scale)
     return rgba
 
@@ -117,8 +132,7 @@ def replace_sphere(mat, k, rgb, cov, label):
     if rgb.shape[0] != d:
         rgb, cov = upsample(rgb, d), upsample(cov[..., None], d)[..., 0]
     rgba[top : top + d, left : left + d] = np.dstack([rgb * cov[..., None], cov])
-    # only this sphere's label: a one-sphere layout at its place
-    label_image(rgba, type(layout)(layout.width, layout.height, 1, d, (left,), top), [label])
+    label_image(rgba, layout, [label if j == k else None for j in range(layout.count)])  # only this sphere's
     return write_preview_image(mat, rgba)
 
 
