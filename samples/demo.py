@@ -153,7 +153,10 @@ def main():
             render_to=os.path.join(args.out, f"{args.sample}_preview.png"),
         )
         renders.append(os.path.join(args.out, f"{args.sample}_preview.png"))
-        _say("preview", f"measured | edited spheres, labelled with the moves, rendered to {renders[-1]} ({time.perf_counter() - t0:.1f} s)")
+        _say(
+            "preview",
+            f"measured | edited spheres, labelled with the moves, rendered to {renders[-1]} ({time.perf_counter() - t0:.1f} s)",
+        )
 
     summary = {
         "blender": bpy.app.version_string,
