@@ -338,7 +338,7 @@ def test_an_apply_in_the_reopened_file(lane):
     # The slider's move redrew the edited sphere the artist sees above the sliders (its
     # screenshot, 13-live.png or the like, shows them in the Edit section).
     assert st["live"]["changed"] and os.path.isfile(st["live"]["shot"]), st["live"]
-    assert data["preview_changed_by_apply"]  # the written table, baked into the preview
+    assert data["preview_applied"]  # the written table, baked into the preview's edited sphere
     at = {(d, t): m for m, d, t in quiet["job"]["marks"]}
     synthesis = at[(6, 10)] - at[(3, 10)]
     assert synthesis < 1.0, quiet["job"]["marks"]

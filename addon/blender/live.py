@@ -119,8 +119,12 @@ def read_preview_image(mat):
     return buf.reshape(h, w, 4)[::-1].copy()
 
 
-def replace_sphere(mat, k, rgb, cov, label):
-    """Sphere ``k`` of the preview image replaced by a (D, D) bake; the other sphere is kept."""
+SHOWN: dict = {}  # material name -> the stage of the edited sphere in its preview now
+
+
+def replace_sphere(mat, k, rgb, cov, label, stage=None):
+    """Sphere ``k`` of the preview image replaced by a (D, D) bake; the other sphere is kept.
+    ``stage`` (live, refined, applied) is kept in ``SHOWN``: the label may be too narrow to say."""
     from ..core.render import sphere_layout
 
     rgba = read_preview_image(mat)
@@ -133,6 +137,8 @@ def replace_sphere(mat, k, rgb, cov, label):
         rgb, cov = upsample(rgb, d), upsample(cov[..., None], d)[..., 0]
     rgba[top : top + d, left : left + d] = np.dstack([rgb * cov[..., None], cov])
     label_image(rgba, layout, [label if j == k else None for j in range(layout.count)])  # only this sphere's
+    if stage is not None:
+        SHOWN[mat.name] = stage
     return write_preview_image(mat, rgba)
 
 
@@ -194,7 +200,7 @@ def update_now(mat, refine=False):
     first = []
 
     def post(stage, rgb, cov):
-        replace_sphere(mat, 1, rgb, cov, sphere_label(job["moves"], stage, job["cell"]))
+        replace_sphere(mat, 1, rgb, cov, sphere_label(job["moves"], stage, job["cell"]), stage)
         if not first:
             first.append(time.perf_counter() - t0)
 
@@ -295,6 +301,6 @@ def _apply_posted():
         mat = bpy.data.materials.get(name)
         if mat is None or _GEN.get(name) != gen and stage != "live":
             continue
-        replace_sphere(mat, 1, rgb, cov, label)
+        replace_sphere(mat, 1, rgb, cov, label, stage)
     busy = any(t.name == "brdf_moments: live preview" and t.is_alive() for t in threading.enumerate())
     return POLL if busy or posted else None

@@ -637,15 +637,16 @@ def session():
     before = preview_digest()
     status, message = run_op(bpy.ops.brdf_moments.apply_edit, "INVOKE_DEFAULT", material=MAT)
     yield from wait_jobs()
-    # The written table baked into the preview (labelled 'applied'): its bake starts from a timer
-    # once the Apply ends, so under load it may not have begun when the job is seen finished.
-    changed = False
+    # The written table baked into the preview's edited sphere: its bake starts from a timer once
+    # the Apply ends, so under load it may not have begun when the job is seen finished. (The
+    # pixels may not change: Apply writes the synthesis the settled live preview showed.)
+    live = sys.modules["brdf_moments.addon.blender.live"]
     for _ in range(300):
         yield 0.1
-        if preview_digest() != before:
-            changed = True
+        if live.SHOWN.get(MAT) == "applied":
             break
-    result["preview_changed_by_apply"] = changed
+    result["preview_applied"] = live.SHOWN.get(MAT) == "applied"
+    result["preview_changed_by_apply"] = preview_digest() != before
     solve = sys.modules.get("brdf_moments.addon.core.edit.solve")
     record("apply_quiet", status=status, message=message, job=last_job())
 
