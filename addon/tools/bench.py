@@ -999,7 +999,11 @@ def bench_curves(quick):
                 continue
             mus.append(sol.fit["mu_slope"])
             s2s.append(sol.fit["sigma2"])
-        curves[name.split("/", 1)[1]] = (np.array(mus), np.array(s2s), (fit["mu_slope"], fit["sigma2"]))
+        curves[name] = (
+            np.array(mus),
+            np.array(s2s),
+            (fit["mu_slope"], fit["sigma2"]),
+        )  # set/name: two sets share names
         fitted[name] = (fit["mu_slope"], fit["sigma2"])
     spent = time.perf_counter() - t0
     corr = fit_correlation([m for m, _ in fitted.values()], [v for _, v in fitted.values()])
