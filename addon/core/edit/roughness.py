@@ -57,6 +57,7 @@ FADE_COS = (0.01, 0.06)  # the horizon fade's band in cos of the lower direction
 CUBE = (3, RES_TH, RES_TD, RES_PD)
 ENERGY_STRIDE = 3  # the energy bound's quick look: every third analysed view and the last (0.05 s)
 ENERGY_MARGIN = 0.9  # below this share of the bound on those views, no view between them reaches it
+ENERGY_CHUNK = 10  # views per step of the exact bound's sums
 
 
 @dataclass
@@ -168,22 +169,28 @@ def _energy_bound(src: Source, spec) -> int:
     op = get_operator(views)
     nv = len(views)
     (ni, fi), (no, fo), owner, nn = _cell_nodes(views)
-    cells = op.cells
-    base = np.repeat(np.arange(nv, dtype=np.int32) * (nn * nn), np.diff(op.offsets))
-    nie, fie, noe, foe = ni[cells], fi[cells], no[cells], fo[cells]
-    combos = []  # the four (theta_i node, theta_o node) corners of each entry, and their weights
-    for di, wi in ((0, 1.0 - fie), (1, fie)):
-        for do, wo in ((0, 1.0 - foe), (1, foe)):
-            idx = base + np.minimum(nie + di, nn - 1) * nn + np.minimum(noe + do, nn - 1)
-            combos.append((idx, (wi * wo) * op.albedo))
-    del nie, fie, noe, foe
     flat = spec.reshape(3, -1)
+    masked = np.where(valid, flat, 0.0)
+    Es = np.zeros((3, nv * nn * nn))
+    # A few views at a time: each numpy call stays short, so a worker thread doing this (the
+    # live preview) never holds the GIL long enough to stall Blender's window.
+    for k0 in range(0, nv, ENERGY_CHUNK):
+        k1 = min(k0 + ENERGY_CHUNK, nv)
+        a, b = int(op.offsets[k0]), int(op.offsets[k1])
+        cells = op.cells[a:b]
+        base = np.repeat(np.arange(k1 - k0, dtype=np.int32) * (nn * nn), np.diff(op.offsets[k0 : k1 + 1]))
+        rows = slice(k0 * nn * nn, k1 * nn * nn)
+        nie, fie, noe, foe, alb = ni[cells], fi[cells], no[cells], fo[cells], op.albedo[a:b]
+        vals = masked[:, cells]
+        for di, wi in ((0, 1.0 - fie), (1, fie)):
+            for do, wo in ((0, 1.0 - foe), (1, foe)):
+                idx = base + np.minimum(nie + di, nn - 1) * nn + np.minimum(noe + do, nn - 1)
+                w = (wi * wo) * alb
+                for ch in range(3):
+                    Es[ch, rows] += np.bincount(idx, vals[ch] * w, (k1 - k0) * nn * nn)
     bounded = 0
     for ch in range(3):
-        v = np.where(valid[ch], flat[ch], 0.0)[cells]
-        E = np.zeros(nv * nn * nn)
-        for idx, w in combos:
-            E += np.bincount(idx, v * w, nv * nn * nn)
+        E = Es[ch]
         E = E.reshape(nv, nn, nn)
         lim = limit[:, ch]
         if np.all(E.sum(axis=(1, 2)) <= lim):
