@@ -101,8 +101,16 @@ def test_a_phong_lobe_over_a_lambertian_keeps_its_floor_and_widens_with_s():
     kd, _ = joint_floor(table, prof.kd)
     np.testing.assert_allclose(kd, 0.1 / math.pi, rtol=1e-3)
     src = prepare(table, prof.kd, split=prof.split, views=prof.theta_o)
-    got = [measure(scale_roughness(src, s)[0], prof.theta_o, prof.split)[1]["sigma2"] for s in (0.7, 1.4)]
+    tables = {s: scale_roughness(src, s)[0] for s in (0.7, 1.4)}
+    got = [measure(tables[s], prof.theta_o, prof.split)[1]["sigma2"] for s in (0.7, 1.4)]
     assert got[0] < fit["sigma2"] < got[1] < 4.0 * fit["sigma2"]
+    # The horizon fade only lowers a cell towards its own fall-off, never above the operator's
+    # value (it once raised a grazing cell of this table widened to 621 times the lobe's peak,
+    # through the growth ratio of a near-zero NDF row); the widened lobe's grazing cells stay
+    # within twice the source's brightest (a microfacet lobe's grazing cells outshine its peak).
+    unfaded = scale_roughness(src, 1.4, fade=False)[0]
+    assert np.all(tables[1.4].rho <= unfaded.rho + 1e-12)
+    assert tables[1.4].rho.max() <= 2.0 * table.rho.max()
 
 
 def test_the_floor_of_a_height_correlated_plastic_is_its_true_floor():

@@ -16,8 +16,8 @@ the input back exactly.
 
 Near the horizon a measured table can fall off faster than any reading (the measurement goes to
 zero, the model does not): within a few degrees of it the edit fades to the cell's own value
-times the reading's growth for that cell, so no cell there grows beyond what the microsurface
-predicts for it from its own measurement (on an analytic table the two agree to 1e-9 in the
+times the reading's growth for that cell (never above the operator's own value), so no cell
+there grows beyond what the microsurface predicts for it from its own measurement (on an analytic table the two agree to 1e-9 in the
 reading's misfit; capping those cells at the lobe's peak instead broke that agreement on a
 widened GGX plastic and with it the next edit's masking form and floor).
 
@@ -280,5 +280,8 @@ def _horizon_fade(src: Source, s, spec):
     trusted = r.ndf > 1e-6 * float(r.ndf.max(initial=0.0))
     w = np.where(trusted[:, None, None], w, 1.0)
     near = w < 1.0
-    out = np.where(near[None], w[None] * spec + (1.0 - w[None]) * kept, spec)
+    # The fade only keeps a faster fall-off: it never raises a cell above the operator's own value
+    # (where the reading's NDF is tiny but above the trust cut, its growth ratio blew up: a
+    # Phong table widened x1.4 got a grazing cell 621 times the lobe's peak).
+    out = np.where(near[None], w[None] * spec + (1.0 - w[None]) * np.minimum(kept, spec), spec)
     return out, int(near.sum())
