@@ -48,28 +48,24 @@ def plot_profiles(prof, path, title=None, measured=None, announced=None):
     ]
     for ax, (_, series, label, unit) in zip(axes.flat, panels):
         drawn = False
-        if measured is not None:
+        # What the profiles read against, channel average: the measured ones beneath (thick grey),
+        # an edit's announced ones over them (dashed orange).
+        for other, name, style_kw in (
+            (measured, "measured (avg)", {"color": "#b0b0b0", "lw": 3.2}),
+            (announced, "announced (avg)", {"color": "#e07000", "lw": 1.0, "zorder": 5, "ls": (0, (4, 3))}),
+        ):
+            if other is None:
+                continue
             for key, style in series:
-                if key in measured["avg"]:
+                if key in other["avg"]:
+                    kw = dict(style_kw)
+                    fmt = () if "ls" in kw else (style,)
                     ax.plot(
-                        np.degrees(measured.theta_o),
-                        measured["avg"][key],
-                        style,
-                        color="#b0b0b0",
-                        lw=3.2,
-                        label="measured (avg)" if style == "-" else None,
-                    )
-        if announced is not None:
-            for key, style in series:
-                if key in announced["avg"]:
-                    ax.plot(
-                        np.degrees(announced.theta_o),
-                        announced["avg"][key],
-                        ls=(0, (4, 3)),
-                        color="#e07000",
-                        lw=1.0,
-                        zorder=5,
-                        label="announced (avg)" if style == "-" else None,
+                        np.degrees(other.theta_o),
+                        other["avg"][key],
+                        *fmt,
+                        **kw,
+                        label=name if style == "-" else None,
                     )
         for ch, (colour, name) in CHANNEL_STYLE.items():
             for key, style in series:
