@@ -10,16 +10,18 @@ and the masking to that of D_s. Every cell of the edited table is read from the 
 J the Jacobian above. Q is the table without its masking (F D x residual): it is interpolated
 along theta_h (Catmull-Rom in the index coordinate u = sqrt(theta_h / (pi/2)) * 90 - 1/2, even
 about theta_h = 0), and where the source is missing (beyond the table's horizon, reached when
-narrowing) it is completed by the reading itself, Q = F D. F and the residual are carried
-unchanged. Built cell by cell in (theta_h, theta_d, phi_d), the table is reciprocal; s = 1 gives
+narrowing) it is completed by the reading, Q = F D times the table's own ratio to it at the
+column's last measured cell (a table that falls off faster than its reading keeps falling). F and
+the residual are carried unchanged. Built cell by cell in (theta_h, theta_d, phi_d), the table is reciprocal; s = 1 gives
 the input back exactly.
 
 Near the horizon a measured table can fall off faster than any reading (the measurement goes to
 zero, the model does not): within a few degrees of it the edit fades to the cell's own value
 times the reading's growth for that cell (never above the operator's own value), so no cell
-there grows beyond what the microsurface predicts for it from its own measurement (on an analytic table the two agree to 1e-9 in the
-reading's misfit; capping those cells at the lobe's peak instead broke that agreement on a
-widened GGX plastic and with it the next edit's masking form and floor).
+there grows beyond what the microsurface predicts for it from its own measurement (on an
+analytic table the two agree to 1e-9 in the reading's misfit; capping those cells at the lobe's
+peak instead broke that agreement on a widened GGX plastic and with it the next edit's masking
+form and floor).
 
 A passive surface returns at most the light it receives. Where the reading cannot explain a
 table at grazing views (a fabric's sheen read as a Fresnel factor far above 1, held down in the
@@ -70,7 +72,7 @@ class Source:
     floor_scale: np.ndarray  # (3,) kd / kd_paper
     reading: Reading
     spec: np.ndarray  # (3, TH, TD, PD) rho - kd, clipped at 0, 0 where missing
-    q: np.ndarray  # (3, TH, TD, PD) spec * gden, completed by F D where missing
+    q: np.ndarray  # (3, TH, TD, PD) spec * gden; where missing, F D times the column's last ratio
     peak: np.ndarray  # (3,) the largest specular value per channel
     views: np.ndarray  # the analysis's view elevations (the energy bound's views)
     albedo: np.ndarray  # (views, 3) the table's own directional albedo
@@ -176,11 +178,11 @@ def _energy_bound(src: Source, spec) -> int:
     # live preview) never holds the GIL long enough to stall Blender's window.
     for k0 in range(0, nv, ENERGY_CHUNK):
         k1 = min(k0 + ENERGY_CHUNK, nv)
-        a, b = int(op.offsets[k0]), int(op.offsets[k1])
-        cells = op.cells[a:b]
+        first, last = int(op.offsets[k0]), int(op.offsets[k1])
+        cells = op.cells[first:last]
         base = np.repeat(np.arange(k1 - k0, dtype=np.int32) * (nn * nn), np.diff(op.offsets[k0 : k1 + 1]))
         rows = slice(k0 * nn * nn, k1 * nn * nn)
-        nie, fie, noe, foe, alb = ni[cells], fi[cells], no[cells], fo[cells], op.albedo[a:b]
+        nie, fie, noe, foe, alb = ni[cells], fi[cells], no[cells], fo[cells], op.albedo[first:last]
         vals = masked[:, cells]
         for di, wi in ((0, 1.0 - fie), (1, fie)):
             for do, wo in ((0, 1.0 - foe), (1, foe)):
