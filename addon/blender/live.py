@@ -262,6 +262,7 @@ def _stop_all():
         _GEN[name] += 1
     with _LOCK:
         _POSTED.clear()
+    SHOWN.clear()
 
 
 def pause(mat):
