@@ -15,8 +15,9 @@ import os
 import bpy
 import numpy as np
 
+from ..addon.blender.images import label_image
 from ..addon.blender.jobs import BackgroundJob
-from ..addon.blender.live import label_image, preview_image_name, write_preview_image
+from ..addon.blender.live import preview_image_name, write_preview_image
 from ..addon.core.limits import MAX_RENDER_SIZE, MAX_SAMPLES
 from ..addon.core.render.live import FINAL_SAMPLES
 from .common import analysed_material

@@ -185,20 +185,20 @@ def test_sphere_labels_stay_in_their_cells_and_leave_nothing_behind(blender):
     longer one's pixels are gone; the other sphere's cell is never touched."""
     from addon.core.render import sphere_layout
 
-    live = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.live"]
     font = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.plot_font"]
     lay = sphere_layout(128, 64, 2)
     rng = np.random.default_rng(3)
     img = rng.uniform(0.2, 0.8, (64, 128, 4)).astype(np.float32)
     left_cell = img[:, :64].copy()
-    live.label_image(img, lay, [None, "σ²×1.30 μ+0.05 refined"])
+    images = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.images"]
+    images.label_image(img, lay, [None, "σ²×1.30 μ+0.05 refined"])
     np.testing.assert_array_equal(img[:, :64], left_cell)
     inked = img[: lay.top, 64:, 0] == 1.0  # white text pixels in the margin above sphere 1
     cols = np.flatnonzero(inked.any(axis=0))
     assert cols.size and cols.max() - cols.min() < 64  # the words that fit: within the cell
     assert font.text_width("σ²×1.30") <= 64 < font.text_width("σ²×1.30 μ+0.05")  # so one word is left
     assert cols.max() - cols.min() < font.text_width("σ²×1.30")
-    live.label_image(img, lay, [None, "σ²×1.30"])
+    images.label_image(img, lay, [None, "σ²×1.30"])
     np.testing.assert_array_equal(img[:, :64], left_cell)
     w = font.text_width("σ²×1.30")
     x = min(max(lay.lefts[1] + (lay.diameter - w) // 2, 64), 128 - w)

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..core.render.live import FINAL_SAMPLES, source_table, work
 from . import lifecycle
+from .images import label_image
 
 DEBOUNCE = 0.1  # seconds of quiet after a slider move before the work starts
 POLL = 0.05
@@ -67,35 +68,6 @@ def upsample(tile, d):
 
 
 # --- the image ---------------------------------------------------------------------------------
-
-
-def label_image(rgba, layout, labels):
-    """Sphere labels drawn into the (H, W, 4) top-row-first image, above each sphere, each within
-    its own cell (words dropped from the end until it fits); a label of None is left as it is.
-    The cell's margins under the label are cleared first, so a longer label drawn there before
-    leaves nothing behind."""
-    from .plot_font import draw_text, text_width
-
-    scale = max(1, layout.diameter // 100)
-    cell = layout.width / max(layout.count, 1)
-    d, top = layout.diameter, layout.top
-    for k, (left, text) in enumerate(zip(layout.lefts, labels)):
-        if text is None:
-            continue
-        x0, x1 = int(round(k * cell)), int(round((k + 1) * cell))
-        while text_width(text, scale) > x1 - x0 and " " in text:
-            text = text.rsplit(" ", 1)[0]
-        text = text[: max((x1 - x0) // text_width("x", scale), 0)]
-        w = text_width(text, scale)
-        y = max(top - 9 * scale, 1)
-        y1 = y + 8 * scale
-        rgba[: min(top, y1), x0:x1] = 0.0  # the margin above the sphere
-        rgba[top:y1, x0:left] = 0.0  # and beside it
-        rgba[top:y1, left + d : x1] = 0.0
-        x = min(max(left + (d - w) // 2, x0), max(x1 - w, x0))  # over the sphere, inside its cell
-        rgba[y - 1 : y1, max(x - 1, 0) : x + w + 1] = (0.0, 0.0, 0.0, 1.0)  # a dark box: legible anywhere
-        draw_text(rgba, x, y, text, (1.0, 1.0, 1.0), scale)
-    return rgba
 
 
 def write_preview_image(mat, rgba):

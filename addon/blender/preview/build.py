@@ -416,7 +416,7 @@ def _label_file(path, labels):
     import numpy as np
 
     from ...core.render import sphere_layout
-    from ..live import label_image
+    from ..images import label_image
 
     img = bpy.data.images.load(path, check_existing=False)
     try:
