@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..integrate import directional_albedo, get_operator
+from ..integrate import default_views, directional_albedo, get_operator
 from ..limits import ROUGHNESS_RANGE
 from ..merl import RES_PD, RES_TD, RES_TH, MerlTable
 from .floor import joint_floor
@@ -93,8 +93,6 @@ def prepare(table: MerlTable, kd_paper, split=True, views=None) -> Source | None
     model_q = reading.fresnel[:, None, :, None] * reading.ndf[None, :, None, None]
     q = np.where(valid, spec * gd[None], _complete(spec * gd[None], model_q, valid))
     peak = spec.reshape(3, -1).max(axis=1)
-    from ..integrate import default_views
-
     views = default_views() if views is None else np.asarray(views, float)
     albedo = directional_albedo(table, views)
     ones = MerlTable(np.where(table.valid, 1.0, 0.0), table.valid, None)
