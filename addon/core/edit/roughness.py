@@ -201,6 +201,21 @@ def _energy_bound(src: Source, spec) -> int:
     return bounded
 
 
+def bound_energy(src: Source, table: MerlTable) -> tuple[MerlTable, int]:
+    """``table`` (an edit of ``src``'s table over the same floor, such as the tilt's) with the
+    same passivity bound as ``scale_roughness`` applies: no analysed view's albedo above
+    max(1, the source's). Returns the table (``table`` itself when nothing was over) and how
+    many view-channel pairs needed it."""
+    kd = src.kd[:, None, None, None]
+    valid = table.valid.reshape(CUBE)
+    spec = np.where(valid, np.maximum(table.rho.reshape(CUBE) - kd, 0.0), 0.0)
+    bounded = _energy_bound(src, spec)
+    if not bounded:
+        return table, 0
+    rho = np.where(valid, spec + kd, 0.0)
+    return MerlTable(rho.reshape(3, -1), table.valid.copy(), None), bounded
+
+
 def _at_cells(c, node, frac):
     return c[node] * (1.0 - frac) + c[np.minimum(node + 1, len(c) - 1)] * frac
 

@@ -588,7 +588,7 @@ def roughness_edit(
     sigma~^2 (``scale.solve_scale``), the energy sliders on its specular part, and the
     announcement measured on that table. A request the operator cannot reach ends at the
     nearest scale it reaches and is reported as clamped."""
-    from .roughness import S_RANGE
+    from .roughness import S_RANGE, bound_energy
     from .scale import at_scale, solve_scale
     from .scale import measure as measure_table
 
@@ -628,11 +628,18 @@ def roughness_edit(
     new_prof, new_fit = sol.profiles, sol.fit
     clamped = region_clamped
     tilt = 0.0
+    tilt_bounded = 0
     if targets.mu_slope is not None and new_fit.get("mu_slope") is not None:
         want = float(mu_r - new_fit["mu_slope"])
         if abs(want) > MU_MET:
             with one_thread():
                 tilt, out, new_prof, new_fit = solve_tilt(out, new_prof, new_fit, want, stop=stop)
+                # The tilt keeps each view's energy as a moment, not its albedo: a lobe moved
+                # towards the horizon can return more than it receives (acrylic_felt_orange's
+                # joint move reached 1.151), so it takes the operator's passivity bound too.
+                out, tilt_bounded = bound_energy(src, out)
+                if tilt_bounded:
+                    new_prof, new_fit = measure_table(out, prof.theta_o, prof.split)
             if abs(new_fit["mu_slope"] - mu_r) > MU_MET:
                 clamped = True
                 warnings.append(
@@ -700,6 +707,7 @@ def roughness_edit(
         "masking": src.reading.form,
         "reading_misfit": float(src.reading.misfit),
         "tilt": tilt,
+        "tilt_energy_bounded_views": int(tilt_bounded),
         "solve_steps": int(sol.steps),
         "clamped": bool(clamped),
         "faded_cells": int(sol.report.get("faded_cells", 0)),
