@@ -495,20 +495,29 @@ def _cap_horizon_growth(out, before, kd):
     """SPEC §3: near the horizon no cell grows by more than the lobe's peak does. The tilt's
     factor is largest there (a cell may rise e^3 by the transform's own bound); cells of the band
     are capped at their value before times the specular peak's growth."""
-    from .microfacet import cell_cosines
-    from .roughness import CUBE
-
-    k = kd[:, None, None, None]
-    new = np.maximum(out.rho.reshape(CUBE) - k, 0.0)
-    old = np.maximum(before.rho.reshape(CUBE) - k, 0.0)
-    ci, co = cell_cosines()
-    band = (np.minimum(ci, co) < HORIZON_COS)[None]
-    peak_new = np.where(band, 0.0, new).reshape(3, -1).max(axis=1)
-    peak_old = np.where(band, 0.0, old).reshape(3, -1).max(axis=1)
-    growth = np.maximum(peak_new / np.maximum(peak_old, 1e-300), 1.0)[:, None, None, None]
-    capped = np.where(band, np.minimum(new, old * growth), new)
-    rho = np.where(out.valid, (capped + k).reshape(3, -1), 0.0)
+    band, inner = _horizon_band()
+    k = np.asarray(kd, float)[:, None]
+    new = np.maximum(out.rho - k, 0.0)
+    old_band = np.maximum(before.rho[:, band] - k, 0.0)
+    peak_new = new[:, inner].max(axis=1)
+    peak_old = np.maximum(before.rho[:, inner] - k, 0.0).max(axis=1)
+    growth = np.maximum(peak_new / np.maximum(peak_old, 1e-300), 1.0)[:, None]
+    new[:, band] = np.minimum(new[:, band], old_band * growth)
+    rho = np.where(out.valid, new + k, 0.0)
     return MerlTable(rho, out.valid.copy(), None)
+
+
+def _horizon_band():
+    """The flat cell indices within HORIZON_COS of the horizon, and those outside it (once)."""
+    if "band" not in _BAND:
+        from .microfacet import cell_cosines
+
+        low = np.minimum(*cell_cosines()).ravel()
+        _BAND["band"] = (np.flatnonzero(low < HORIZON_COS), np.flatnonzero(low >= HORIZON_COS))
+    return _BAND["band"]
+
+
+_BAND: dict = {}
 
 
 MU_MET = 0.002  # a mean slope this close to the request is met (SPEC §6: within 0.002)
