@@ -7,7 +7,7 @@
 #
 # --fast: the engine alone, under a minute: no Blender (tests marked `blender`, and every
 # test using the bpy fixture, see tests/conftest.py), no stress suite, no `slow` tests.
-# Further arguments go to pytest in both modes.
+# Further arguments go to pytest in both modes; naming test files runs those alone.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 fast=0
@@ -17,8 +17,15 @@ if [ "${1:-}" = "--fast" ]; then
 fi
 bash scripts/setup.sh
 export BRDF_MOMENTS_CACHE=${BRDF_MOMENTS_CACHE:-$PWD/.cache/engine}
+# The whole of tests/ unless test files or folders are named (then only those).
+where=(tests)
+for arg in "$@"; do
+    if [ -e "${arg%%::*}" ]; then
+        where=()
+    fi
+done
 if [ "$fast" = 1 ]; then
-    exec .venv/bin/python -m pytest -q -m "not blender and not stress and not slow" tests "$@"
+    exec .venv/bin/python -m pytest -q -m "not blender and not stress and not slow" "${where[@]}" "$@"
 fi
 export BRDF_MOMENTS_REQUIRE_LANES=1
-.venv/bin/python -m pytest -q tests "$@"
+.venv/bin/python -m pytest -q "${where[@]}" "$@"
