@@ -130,35 +130,48 @@ def on_file_load(fn):
     return fn
 
 
+def _run_steps(steps, when) -> int:
+    """Call each step; one failing is printed and does not stop the others. Returns how many ran."""
+    done = 0
+    for fn in list(steps):
+        try:
+            fn()
+            done += 1
+        except Exception as exc:  # noqa: BLE001 - one failing step must not stop the others
+            print(f"BRDF Moments: {when}: {type(exc).__name__}: {exc}")
+    return done
+
+
+def _stop_and_join(threads, timeout, when, report):
+    """Ask every live thread of ``threads`` ((thread, stop) pairs) to stop, then join them,
+    ``timeout`` seconds in all; counts them and names the ones still running in ``report``."""
+    live = [(t, s) for t, s in threads if t.is_alive()]
+    for thread, stop in live:
+        if stop is not None:
+            try:
+                stop()
+            except Exception as exc:  # noqa: BLE001
+                print(f"BRDF Moments: {when}: stopping {thread.name}: {type(exc).__name__}: {exc}")
+    deadline = time.monotonic() + timeout
+    for thread, _ in live:
+        report["threads"] += 1
+        thread.join(max(deadline - time.monotonic(), 0.0))
+        if thread.is_alive():
+            report["left"].append(thread.name)
+    if report["left"]:
+        print(f"BRDF Moments: {when}: still running after {timeout:.0f} s: {', '.join(report['left'])}")
+
+
 def file_loading(timeout=5.0) -> dict:
     """Before another file is opened (``load_pre``): what the add-on drew or baked for this file
     is dropped (the ``on_file_load`` steps make every thread's result stale and clear what
     waits to be placed), then its threads are asked to stop and joined, ``timeout`` seconds in
     all, so that none is still working while Blender frees this file's data and reads the next.
     A job's listener and the warm-up go on (``outlives_file``). Returns what it found."""
-    report = {"steps": 0, "threads": 0, "left": []}
-    for fn in list(_FILE_STEPS):
-        try:
-            fn()
-            report["steps"] += 1
-        except Exception as exc:  # noqa: BLE001 - one failing step must not stop the others
-            print(f"BRDF Moments: opening a file: {type(exc).__name__}: {exc}")
+    report = {"steps": _run_steps(_FILE_STEPS, "opening a file"), "threads": 0, "left": []}
     with _LOCK:
-        ending = [(t, s) for t, s in _THREADS if t.is_alive() and not t.brdf_moments_outlives_file]
-    for thread, stop in ending:
-        if stop is not None:
-            try:
-                stop()
-            except Exception as exc:  # noqa: BLE001
-                print(f"BRDF Moments: opening a file: stopping {thread.name}: {type(exc).__name__}: {exc}")
-    deadline = time.monotonic() + timeout
-    for thread, _ in ending:
-        report["threads"] += 1
-        thread.join(max(deadline - time.monotonic(), 0.0))
-        if thread.is_alive():
-            report["left"].append(thread.name)
-    if report["left"]:
-        print(f"BRDF Moments: opening a file: still running after {timeout:.0f} s: {', '.join(report['left'])}")
+        ending = [(t, s) for t, s in _THREADS if not t.brdf_moments_outlives_file]
+    _stop_and_join(ending, timeout, "opening a file", report)
     return report
 
 
@@ -171,13 +184,7 @@ def shutdown(timeout=30.0) -> dict:
     machine) is not interruptible and took over 10 s with the two cores shared four ways."""
     import bpy
 
-    report = {"cleanups": 0, "timers": 0, "threads": 0, "left": []}
-    for fn in list(_CLEANUPS):
-        try:
-            fn()
-            report["cleanups"] += 1
-        except Exception as exc:  # noqa: BLE001 - one failing step must not stop the others
-            print(f"BRDF Moments: unregister: {type(exc).__name__}: {exc}")
+    report = {"cleanups": _run_steps(_CLEANUPS, "unregister"), "timers": 0, "threads": 0, "left": []}
     with _LOCK:
         registered, _TIMERS[:] = list(_TIMERS), []
         running, _THREADS[:] = list(_THREADS), []
@@ -185,20 +192,6 @@ def shutdown(timeout=30.0) -> dict:
         if bpy.app.timers.is_registered(fn):
             bpy.app.timers.unregister(fn)
             report["timers"] += 1
-    for thread, stop in running:
-        if stop is not None and thread.is_alive():
-            try:
-                stop()
-            except Exception as exc:  # noqa: BLE001
-                print(f"BRDF Moments: unregister: stopping {thread.name}: {type(exc).__name__}: {exc}")
-    deadline = time.monotonic() + timeout
-    for thread, _ in running:
-        if thread.is_alive():
-            report["threads"] += 1
-            thread.join(max(deadline - time.monotonic(), 0.0))
-        if thread.is_alive():
-            report["left"].append(thread.name)
-    if report["left"]:
-        print(f"BRDF Moments: unregister: still running after {timeout:.0f} s: {', '.join(report['left'])}")
+    _stop_and_join(running, timeout, "unregister", report)
     detach_mp_main()
     return report
