@@ -16,8 +16,8 @@ def resolve_artist_shader(context, choice):
     """'approx', 'lobes', 'principled', 'osl' or None for the artist's material, from the panel's
     choice. Without OSL the default ('approx') fits both approximations and installs the one
     closer to the edited table in BRDF error, the error the panel states (BENCHMARKS.md, "The
-    artist's material", counts how often each wins); on the demo's GGX edit the Principled is,
-    and its render is closer too (issue 28's measurements)."""
+    artist's material", counts how often each wins: the lobes on all 236 measured tables and
+    edits, and on the demo's GGX edit in 3.4, 6.5 %)."""
     from ..addon.blender.preview.osl import osl_available
 
     if choice == "NONE":
