@@ -136,7 +136,8 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
 
             promise = json.dumps(report(res, prof, table), allow_nan=False)  # Export writes it beside the table
             # the least error any mix of Blender's closures reaches on the edited table is the
-            # node_bound job's (5-10 s): Apply starts it once the approximation is in place
+            # node_bound job's (6 s and more): the panel's button runs it after Apply. (Started
+            # from Apply's finish in 3.4's window it failed within a second, cause not found yet.)
             principled = texture = bound = None
             if shader in ("lobes", "approx"):
                 from ..addon.core.lobes import fit_lobes
@@ -218,12 +219,6 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             artist.apply_osl(mat, texture, res, context.scene)
             state.artist_shader_used = "osl"
             note = f"; '{mat.name}' now renders the edited table (OSL)"
-        if state.artist_shader_used in ("lobes", "principled") and self.has_window(context):
-            # the bound beside the fit's error, off the main thread (headless: the operator itself)
-            try:
-                bpy.ops.brdf_moments.node_bound("INVOKE_DEFAULT", material=mat.name)
-            except RuntimeError:  # another job holds the window: the panel offers the button
-                pass
         level = {"WARNING"} if res.warnings else {"INFO"}
         msg = (
             f"{mat.name}: reached μ̃ {state.achieved_mu_slope:+.3f} (announced {_said(res.announced[0], '+.3f')}), "

@@ -522,7 +522,7 @@ def draw_result(layout, mat, cells):
     if renders is not None:
         wrapped(col, renders[0], cells, icon="INFO")
         if "bound" not in renders[0] and state.artist_shader_used in ("lobes", "principled"):
-            # Apply starts it in a window; here when that did not run (or a script applied)
+            # its own background job (6 s and more), after Apply
             button(
                 layout,
                 cells,
