@@ -38,6 +38,7 @@ def operator_classes():
         analyse.BRDFMOMENTS_OT_analyse,
         reset_sliders.BRDFMOMENTS_OT_reset_sliders,
         apply_edit.BRDFMOMENTS_OT_apply_edit,
+        apply_edit.BRDFMOMENTS_OT_node_bound,
         restore_material.BRDFMOMENTS_OT_restore_material,
         export.BRDFMOMENTS_OT_export,
         build_preview.BRDFMOMENTS_OT_build_preview,

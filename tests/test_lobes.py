@@ -207,3 +207,68 @@ def test_the_stretched_lobe_is_the_anisotropic_lobe_of_its_axes(distribution):
     if distribution == "ggx":
         np.testing.assert_allclose(L.ggx_lobe(alpha, wi, wo, "correlated", q), want, rtol=1e-9)
         np.testing.assert_allclose(L.ggx_lobe(alpha, wi, wo, "correlated", 1.0), L.ggx_lobe(alpha, wi, wo), rtol=1e-12)
+
+
+def _snell_fresnel(cos_i, eta):
+    """The unpolarised dielectric Fresnel reflectance from Snell's law and the s and p amplitudes
+    (independent of ``lobes._fresnel_dielectric``'s closed form without the refracted angle)."""
+    sin_t = np.sqrt(1.0 - cos_i**2) / eta
+    cos_t = np.sqrt(1.0 - sin_t**2)
+    rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    return 0.5 * (rs**2 + rp**2)
+
+
+def test_the_fresnel_factor_is_each_blenders_principled_metal_with_a_black_base():
+    """4.x: Schlick's (1 - wi.h)^5 (F0 = the base colour, 0); 3.x: Principled v1's normalised
+    dielectric Fresnel of IOR 1.5 (its Specular 0.5), 0 at normal incidence and 1 at grazing."""
+    wi, wo = _directions(500, 7)
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=-1, keepdims=True)
+    c = np.sum(wi * h, axis=-1)
+    np.testing.assert_allclose(L.fresnel_factor(wi, wo, "correlated"), (1.0 - c) ** 5, rtol=1e-12, atol=1e-15)
+    f0 = 0.04  # ((1.5 - 1) / (1.5 + 1))²
+    want = (_snell_fresnel(c, 1.5) - f0) / (1.0 - f0)
+    np.testing.assert_allclose(L.fresnel_factor(wi, wo, "separable"), want, rtol=1e-9, atol=1e-12)
+    assert L._fresnel_dielectric(np.array(1.0), 1.5) == pytest.approx(f0)
+    assert L._fresnel_dielectric(np.array(0.0), 1.5) == pytest.approx(1.0)
+    lobe = L.lobe_shape(L.FRESNEL, 0.4, wi, wo, "correlated")
+    np.testing.assert_allclose(lobe, L.ggx_lobe(0.16, wi, wo) * (1.0 - c) ** 5, rtol=1e-12)
+
+
+@pytest.mark.parametrize("shadowing", L.SHADOWING)
+def test_beckmann_and_fresnel_lobes_are_given_back(shadowing):
+    """A table of a diffuse colour, a Beckmann lobe and a GGX lobe times the Fresnel factor (grey
+    0.8, under the Mix Shader's 1): the fit finds both kinds at their roughness and states a
+    small error; the Fresnel lobe's weight is grey and within [0, 1] at every view."""
+    rb, rf = L.DICTIONARY[9], L.DICTIONARY[11]
+    kd, cb = np.array([0.3, 0.2, 0.1]), np.array([0.5, 0.4, 0.3])
+
+    def brdf(wi, wo):
+        fb = L.lobe_shape(L.BECKMANN, rb, wi, wo, shadowing)
+        ff = L.lobe_shape(L.FRESNEL, rf, wi, wo, shadowing)
+        return kd[:, None] / np.pi + cb[:, None] * fb[None] + 0.8 * ff[None]
+
+    fit = L.fit_lobes(tabulate(brdf), shadowing=shadowing, aspects=(1.0,))
+    got = dict(zip(zip(fit.kinds, fit.roughness), range(fit.n_lobes)))
+    assert (L.BECKMANN, rb) in got and (L.FRESNEL, rf) in got, (fit.kinds, fit.roughness)
+    assert fit.error < 0.05 and fit.albedo_error < 0.03
+    w = fit.weights[1 + got[(L.FRESNEL, rf)]]
+    assert np.all(w >= 0.0) and np.all(w <= L.FRESNEL_MAX) and np.all(w == w[:, :1])
+    # (near normal view theta_d is small and the factor too: there other lobes can stand in)
+    assert not np.any(np.all(fit.weights[1:] == 0.0, axis=(1, 2)))  # no lobe drawn for nothing
+    again = L.LobeFit.from_dict(fit.as_dict())
+    assert again.kinds == fit.kinds and L.measure(again, tabulate(brdf))[0] == pytest.approx(fit.error, rel=1e-4)
+
+
+def test_a_fresnel_lobe_brighter_than_its_mix_shader_allows_is_capped():
+    """The Mix Shader's factor stops at 1: a table of a Fresnel lobe of weight 3 is fitted with
+    weights at most 1 (and a stored weight over 1 is refused)."""
+    r = L.DICTIONARY[10]
+    table = tabulate(lambda wi, wo: np.repeat(3.0 * L.lobe_shape(L.FRESNEL, r, wi, wo)[None], 3, axis=0))
+    fit = L.fit_lobes(table, aspects=(1.0,), kinds=(L.FRESNEL,))
+    assert fit.kinds and all(k == L.FRESNEL for k in fit.kinds)
+    assert np.all(fit.weights[1:] <= L.FRESNEL_MAX + 1e-12) and np.max(fit.weights[1:]) == pytest.approx(1.0)
+    d = fit.as_dict()
+    d["weights"][1][3] = [1.5, 1.5, 1.5]
+    with pytest.raises(ValueError):
+        L.LobeFit.from_dict(d)

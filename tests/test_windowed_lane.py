@@ -286,12 +286,12 @@ def test_the_artists_material_without_osl(lane):
     st = data["steps"]
     first = st["apply"]["state"]["artist"]
     assert first["used"] in ("lobes", "principled") and first["linked"], first
-    assert ("GGX lobes" if first["used"] == "lobes" else "Principled approx") in first["label"], first
+    assert ("lobes (error" if first["used"] == "lobes" else "Principled (error") in first["label"], first
     lobes_step = st["apply_lobes"]
     assert lobes_step["status"] == ["RUNNING_MODAL"] and lobes_step["job"]["outcome"] == "finished", lobes_step
     art, state = lobes_step["state"]["artist"], lobes_step["state"]
     assert art["choice"] == "LOBES" and art["used"] == "lobes" and art["linked"] and art["lookup_packed"], art
-    assert "GGX lobes" in art["label"]
+    assert "lobes (error" in art["label"]
     fit = LobeFit.from_dict(art["lobes"])
     glossy = [k for k in art["group"] if k in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic")]
     assert len(glossy) == fit.n_lobes

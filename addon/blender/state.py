@@ -328,6 +328,15 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
             tuple(d["base_color"]), d["metallic"], d["roughness"], d["specular"], d["error"], d["albedo_error"]
         )
 
+    def principled_bound(self):
+        """``node_bound`` of the table the last Principled fit was fitted to, or None."""
+        import json
+
+        if not self.principled_data:
+            return None
+        b = json.loads(self.principled_data).get("bound")
+        return None if b is None else float(b)
+
     def profiles(self):
         return unpack_profiles(self.profiles_data) if self.profiles_data else None
 
