@@ -293,10 +293,15 @@ def test_the_artists_material_without_osl(lane):
     assert art["choice"] == "LOBES" and art["used"] == "lobes" and art["linked"] and art["lookup_packed"], art
     assert "lobes (error" in art["label"]
     fit = LobeFit.from_dict(art["lobes"])
+    # one closure per lobe: a Glossy (GGX or Beckmann) or, for a Fresnel-shaped lobe, a Principled
     glossy = [k for k in art["group"] if k in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic")]
-    assert len(glossy) == fit.n_lobes
+    kinds = fit.kinds or ("ggx",) * fit.n_lobes
+    assert len(glossy) == sum(k != "ggx_fresnel" for k in kinds)
+    assert art["group"].count("ShaderNodeBsdfPrincipled") == sum(k == "ggx_fresnel" for k in kinds)
     assert art["group"].count("ShaderNodeTexImage") == fit.lookup_pixels().shape[0]
-    assert "ShaderNodeBsdfDiffuse" in art["group"] and "ShaderNodeLayerWeight" in art["group"]
+    # a Diffuse node only where the fit has a diffuse part
+    assert ("ShaderNodeBsdfDiffuse" in art["group"]) == bool(np.any(fit.weights[0] > 0.0))
+    assert "ShaderNodeLayerWeight" in art["group"]
     assert fit.shadowing == "separable"  # what 3.4's Cycles renders
     table = read_merl(state["edited_path"])
     err, alb = measure(fit, table)
