@@ -531,7 +531,7 @@ def draw_result(layout, mat, cells):
                 layout,
                 cells,
                 "brdf_moments.node_bound",
-                "Bound the Approximation",
+                "Find the Bound",
                 "DRIVER_DISTANCE",
                 material=mat.name,
             )
