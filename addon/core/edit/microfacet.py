@@ -16,7 +16,7 @@ where G / cos does not. The reading of a cell is then F(theta_d) D(theta_h) / gd
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -158,12 +158,20 @@ class Reading:
     area: ProjectedArea
     fresnel: np.ndarray  # (3, RES_TD) per channel, F(theta_d) including F0
     misfit: float  # weighted relative misfit of the reading over the well-measured cells
+    _own_gden: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def gden_cells(self, s: float = 1.0):
         """The masking denominator at every cell of the table (RES_TH, RES_TD, RES_PD), for the
-        microsurface with slopes scaled by ``s``."""
+        microsurface with slopes scaled by ``s``; the table's own (s = 1), which every synthesis
+        divides by, is computed once (read-only)."""
+        if s == 1.0 and self._own_gden is not None:
+            return self._own_gden
         ci, co = cell_cosines()
-        return gden(ci, co, self.area.at(ci, s), self.area.at(co, s), self.form)
+        out = gden(ci, co, self.area.at(ci, s), self.area.at(co, s), self.form)
+        if s == 1.0:
+            out.flags.writeable = False
+            self._own_gden = out
+        return out
 
     def model(self, s: float = 1.0):
         """F D_s / gden_s at every cell, per channel (3, RES_TH, RES_TD, RES_PD)."""

@@ -136,10 +136,11 @@ def scale_roughness(src: Source, s: float, fade: bool = True) -> tuple[MerlTable
     q = np.einsum("hk,ckdp->chdp", W, src.q, optimize=True)
     np.maximum(q, 0.0, out=q)
     q *= jacobian(th, s)[None, :, None, None]
-    spec = q / src.reading.gden_cells(s)[None]
+    gden_s = src.reading.gden_cells(s)
+    spec = q / gden_s[None]
     faded = 0
     if fade:
-        spec, faded = _horizon_fade(src, s, spec)
+        spec, faded = _horizon_fade(src, s, spec, gden_s)
     spec = np.maximum(np.nan_to_num(spec, nan=0.0, posinf=0.0, neginf=0.0), 0.0)  # finite, nonnegative
     spec = np.where(valid, spec, 0.0)
     bounded = _energy_bound(src, spec)
@@ -201,6 +202,21 @@ def _energy_bound(src: Source, spec) -> int:
     return bounded
 
 
+def bound_energy(src: Source, table: MerlTable) -> tuple[MerlTable, int]:
+    """``table`` (an edit of ``src``'s table over the same floor, such as the tilt's) with the
+    same passivity bound as ``scale_roughness`` applies: no analysed view's albedo above
+    max(1, the source's). Returns the table (``table`` itself when nothing was over) and how
+    many view-channel pairs needed it."""
+    kd = src.kd[:, None, None, None]
+    valid = table.valid.reshape(CUBE)
+    spec = np.where(valid, np.maximum(table.rho.reshape(CUBE) - kd, 0.0), 0.0)
+    bounded = _energy_bound(src, spec)
+    if not bounded:
+        return table, 0
+    rho = np.where(valid, spec + kd, 0.0)
+    return MerlTable(rho.reshape(3, -1), table.valid.copy(), None), bounded
+
+
 def _at_cells(c, node, frac):
     return c[node] * (1.0 - frac) + c[np.minimum(node + 1, len(c) - 1)] * frac
 
@@ -259,29 +275,42 @@ def _cell_nodes(views):
 _NODES: dict = {}
 
 
-def _horizon_fade(src: Source, s, spec):
+def _fade_band():
+    """The horizon band's cells (flat indices into (RES_TH, RES_TD, RES_PD)), their theta_h
+    rows and fade weights w (0 at the horizon, 1 at the band's inner edge): a few percent of
+    the table, material independent, so the fade reads and writes only them."""
+    if "band" not in _NODES:
+        ci, co = cell_cosines()
+        low = np.minimum(ci, co).ravel()
+        x = np.clip((low - FADE_COS[0]) / (FADE_COS[1] - FADE_COS[0]), 0.0, 1.0)
+        w = x * x * (3.0 - 2.0 * x)  # smoothstep: the map from s to the table stays smooth
+        idx = np.flatnonzero(w < 1.0)
+        _NODES["band"] = (idx, idx // (RES_TD * RES_PD), w[idx])
+    return _NODES["band"]
+
+
+def _horizon_fade(src: Source, s, spec, gden_s):
     """Within FADE_COS of the horizon the edited cell fades to the source cell times the
     reading's own growth for it (model_s / model): where a measured table falls off faster than
-    its reading, the cell keeps its own fall-off instead of taking the reading's."""
-    ci, co = cell_cosines()
-    low = np.minimum(ci, co)
-    x = np.clip((low - FADE_COS[0]) / (FADE_COS[1] - FADE_COS[0]), 0.0, 1.0)
-    w = x * x * (3.0 - 2.0 * x)  # smoothstep: the map from s to the table stays smooth
-    near = w < 1.0
-    if not near.any():
-        return spec, 0
+    its reading, the cell keeps its own fall-off instead of taking the reading's. ``gden_s``:
+    the scaled surface's masking denominator at every cell."""
+    idx, rows, w = _fade_band()
     r = src.reading
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        d_ratio = scaled_ndf(r.ndf, s) / np.maximum(r.ndf, 1e-300)
-        m_ratio = d_ratio[:, None, None] * (r.gden_cells(1.0) / r.gden_cells(s))
-    kept = src.spec * np.nan_to_num(m_ratio, nan=0.0, posinf=0.0)[None]
     # Where the reading's NDF has (almost) nothing, its growth ratio means nothing (a cell of
     # rounding noise times 1e300): those theta_h rows keep the operator's own value.
     trusted = r.ndf > 1e-6 * float(r.ndf.max(initial=0.0))
-    w = np.where(trusted[:, None, None], w, 1.0)
-    near = w < 1.0
+    near = trusted[rows]
+    idx, rows, w = idx[near], rows[near], w[near]
+    if not len(idx):
+        return spec, 0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        d_ratio = scaled_ndf(r.ndf, s) / np.maximum(r.ndf, 1e-300)
+        m_ratio = d_ratio[rows] * (r.gden_cells(1.0).ravel()[idx] / gden_s.ravel()[idx])
+    flat = spec.reshape(3, -1)
+    kept = src.spec.reshape(3, -1)[:, idx] * np.nan_to_num(m_ratio, nan=0.0, posinf=0.0)[None]
     # The fade only keeps a faster fall-off: it never raises a cell above the operator's own value
     # (where the reading's NDF is tiny but above the trust cut, its growth ratio blew up: a
     # Phong table widened x1.4 got a grazing cell 621 times the lobe's peak).
-    out = np.where(near[None], w[None] * spec + (1.0 - w[None]) * np.minimum(kept, spec), spec)
-    return out, int(near.sum())
+    own = flat[:, idx]
+    flat[:, idx] = w * own + (1.0 - w) * np.minimum(kept, own)
+    return spec, int(len(idx))

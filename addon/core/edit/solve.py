@@ -495,20 +495,29 @@ def _cap_horizon_growth(out, before, kd):
     """SPEC §3: near the horizon no cell grows by more than the lobe's peak does. The tilt's
     factor is largest there (a cell may rise e^3 by the transform's own bound); cells of the band
     are capped at their value before times the specular peak's growth."""
-    from .microfacet import cell_cosines
-    from .roughness import CUBE
-
-    k = kd[:, None, None, None]
-    new = np.maximum(out.rho.reshape(CUBE) - k, 0.0)
-    old = np.maximum(before.rho.reshape(CUBE) - k, 0.0)
-    ci, co = cell_cosines()
-    band = (np.minimum(ci, co) < HORIZON_COS)[None]
-    peak_new = np.where(band, 0.0, new).reshape(3, -1).max(axis=1)
-    peak_old = np.where(band, 0.0, old).reshape(3, -1).max(axis=1)
-    growth = np.maximum(peak_new / np.maximum(peak_old, 1e-300), 1.0)[:, None, None, None]
-    capped = np.where(band, np.minimum(new, old * growth), new)
-    rho = np.where(out.valid, (capped + k).reshape(3, -1), 0.0)
+    band, inner = _horizon_band()
+    k = np.asarray(kd, float)[:, None]
+    new = np.maximum(out.rho - k, 0.0)
+    old_band = np.maximum(before.rho[:, band] - k, 0.0)
+    peak_new = new[:, inner].max(axis=1)
+    peak_old = np.maximum(before.rho[:, inner] - k, 0.0).max(axis=1)
+    growth = np.maximum(peak_new / np.maximum(peak_old, 1e-300), 1.0)[:, None]
+    new[:, band] = np.minimum(new[:, band], old_band * growth)
+    rho = np.where(out.valid, new + k, 0.0)
     return MerlTable(rho, out.valid.copy(), None)
+
+
+def _horizon_band():
+    """The flat cell indices within HORIZON_COS of the horizon, and those outside it (once)."""
+    if "band" not in _BAND:
+        from .microfacet import cell_cosines
+
+        low = np.minimum(*cell_cosines()).ravel()
+        _BAND["band"] = (np.flatnonzero(low < HORIZON_COS), np.flatnonzero(low >= HORIZON_COS))
+    return _BAND["band"]
+
+
+_BAND: dict = {}
 
 
 MU_MET = 0.002  # a mean slope this close to the request is met (SPEC §6: within 0.002)
@@ -588,7 +597,7 @@ def roughness_edit(
     sigma~^2 (``scale.solve_scale``), the energy sliders on its specular part, and the
     announcement measured on that table. A request the operator cannot reach ends at the
     nearest scale it reaches and is reported as clamped."""
-    from .roughness import S_RANGE
+    from .roughness import S_RANGE, bound_energy
     from .scale import at_scale, solve_scale
     from .scale import measure as measure_table
 
@@ -628,11 +637,18 @@ def roughness_edit(
     new_prof, new_fit = sol.profiles, sol.fit
     clamped = region_clamped
     tilt = 0.0
+    tilt_bounded = 0
     if targets.mu_slope is not None and new_fit.get("mu_slope") is not None:
         want = float(mu_r - new_fit["mu_slope"])
         if abs(want) > MU_MET:
             with one_thread():
                 tilt, out, new_prof, new_fit = solve_tilt(out, new_prof, new_fit, want, stop=stop)
+                # The tilt keeps each view's energy as a moment, not its albedo: a lobe moved
+                # towards the horizon can return more than it receives (acrylic_felt_orange's
+                # joint move reached 1.151), so it takes the operator's passivity bound too.
+                out, tilt_bounded = bound_energy(src, out)
+                if tilt_bounded:
+                    new_prof, new_fit = measure_table(out, prof.theta_o, prof.split)
             if abs(new_fit["mu_slope"] - mu_r) > MU_MET:
                 clamped = True
                 warnings.append(
@@ -700,6 +716,7 @@ def roughness_edit(
         "masking": src.reading.form,
         "reading_misfit": float(src.reading.misfit),
         "tilt": tilt,
+        "tilt_energy_bounded_views": int(tilt_bounded),
         "solve_steps": int(sol.steps),
         "clamped": bool(clamped),
         "faded_cells": int(sol.report.get("faded_cells", 0)),
