@@ -39,7 +39,7 @@ def resolve_artist_shader(context, choice):
 
 
 def edits_folder():
-    from ..addon.core.integrate import default_cache_dir
+    from ..addon.core.profiles.integrate import default_cache_dir
 
     return os.path.join(default_cache_dir(), "edits")
 
@@ -56,12 +56,12 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
 
     def start(self, context):
         from ..addon.core.edit import edit, scale_to_albedo
-        from ..addon.core.fits import fit_material
-        from ..addon.core.merl import write_merl
-        from ..addon.core.names import safe_name
-        from ..addon.core.nbrdf import read_table
-        from ..addon.core.profiles import compute_profiles
-        from ..addon.core.sources import source_file
+        from ..addon.core.file.merl import write_merl
+        from ..addon.core.file.names import safe_name
+        from ..addon.core.file.nbrdf import read_table
+        from ..addon.core.file.sources import source_file
+        from ..addon.core.fits.curves import fit_material
+        from ..addon.core.profiles.compute import compute_profiles
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
@@ -73,7 +73,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         scale = state.scale_to_one
         floor = state.floor
         shader = resolve_artist_shader(context, state.artist_shader)
-        from ..addon.core.lobes import ASPECTS, shadowing_for
+        from ..addon.core.material.lobes import ASPECTS, shadowing_for
 
         shadowing = shadowing_for(bpy.app.version)  # the Smith term this Blender's Cycles uses
         # EEVEE draws every lobe round (it ignores anisotropy): for a scene it renders, round lobes
@@ -102,7 +102,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         stored_prof, stored_fit, region = state.profiles(), state.fit(), state.region()
 
         def work(report_progress):
-            from ..addon.core import cachefs
+            from ..addon.core.file import cachefs
             from ..addon.core.limits import EDITS_CACHE_MAX_BYTES, EDITS_CACHE_MAX_ENTRIES
 
             table = read_table(spec)
@@ -140,11 +140,11 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             # from Apply's finish in 3.4's window it failed within a second, cause not found yet.)
             principled = texture = bound = None
             if shader in ("lobes", "approx"):
-                from ..addon.core.lobes import fit_lobes
+                from ..addon.core.material.lobes import fit_lobes
 
                 principled = fit_lobes(res.table, shadowing=shadowing, aspects=aspects)
             if shader in ("principled", "approx"):
-                from ..addon.core.principled import fit_principled
+                from ..addon.core.material.principled import fit_principled
 
                 single = fit_principled(res.table)
                 # Auto: the closer in the BRDF error the panel states
@@ -197,7 +197,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
 
         live.show_applied(mat, out)
         note = ""
-        from ..addon.core.lobes import LobeFit
+        from ..addon.core.material.lobes import LobeFit
 
         if isinstance(principled, LobeFit):
             state.lobes_data = json.dumps(principled.as_dict())

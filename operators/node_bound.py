@@ -12,7 +12,7 @@ from .common import analysed_material
 
 class BRDFMOMENTS_OT_node_bound(BackgroundJob, bpy.types.Operator):
     """The least BRDF error any mix of Blender's closures reaches on the applied edit's table
-    (core.node_bound), stated beside the approximation's own error (Esc cancels)"""
+    (core.material.node_bound), stated beside the approximation's own error (Esc cancels)"""
 
     bl_idname = "brdf_moments.node_bound"
     bl_label = "Bound"
@@ -22,7 +22,7 @@ class BRDFMOMENTS_OT_node_bound(BackgroundJob, bpy.types.Operator):
     material: bpy.props.StringProperty(name="Material", description="target material (default: active)")
 
     def start(self, context):
-        from ..addon.core.lobes import shadowing_for
+        from ..addon.core.material.lobes import shadowing_for
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
@@ -34,8 +34,8 @@ class BRDFMOMENTS_OT_node_bound(BackgroundJob, bpy.types.Operator):
         self._mat_name, self._path = mat.name, path
 
         def work(report_progress):
-            from ..addon.core.merl import read_merl
-            from ..addon.core.node_bound import node_bound
+            from ..addon.core.file.merl import read_merl
+            from ..addon.core.material.node_bound import node_bound
 
             report_progress(1, 3)
             return node_bound(read_merl(path), shadowing=shadowing)

@@ -1,4 +1,4 @@
-"""The check that Cycles renders a stretched lobe of ``core.lobes`` as the fit models it: one GGX
+"""The check that Cycles renders a stretched lobe of ``core.material.lobes`` as the fit models it: one GGX
 lobe (roughness 0.3, white) stretched across the plane of incidence (aspect 3 past the first
 texel), put into a material by the add-on's ``apply_lobes``, on a sphere under Blender's studio
 HDRI, against a converged numpy render of the model itself (``lobes_brdf``: a MERL table cannot
@@ -33,10 +33,10 @@ def render_errors(bpy, material, exr_path, case="stretched"):
     lobes), the model's error under "model"."""
     from addon.blender.preview import render_still
     from addon.blender.preview import scene as sc
-    from addon.core import lobes as L
-    from addon.core.merl import tabulate
-    from addon.core.profiles import compute_profiles
-    from addon.core.render import TableBRDF, bake_sphere, relative_rmse, sphere_layout
+    from addon.core.file.merl import tabulate
+    from addon.core.material import lobes as L
+    from addon.core.preview import TableBRDF, bake_sphere, relative_rmse, sphere_layout
+    from addon.core.profiles.compute import compute_profiles
     from addon.tools.bench_preview import _environment, _read_exr
 
     n = L.N_VIEWS

@@ -18,7 +18,7 @@ def artist(fresh, tmp_path, monkeypatch):
     import samples
     from addon.blender.preview import scene as sc
     from addon.blender.preview import write_environment
-    from addon.core.render import sphere_layout
+    from addon.core.preview import sphere_layout
 
     bpy = fresh
     src = tmp_path / "glossy.binary"
@@ -91,8 +91,8 @@ def _tree(mat):
 
 
 def test_apply_renders_the_edit_and_restore_gives_the_original_back(artist):
-    from addon.core.merl import read_merl
-    from addon.core.render import Environment, TableBRDF, relative_rmse, render_reference
+    from addon.core.file.merl import read_merl
+    from addon.core.preview import Environment, TableBRDF, relative_rmse, render_reference
 
     bpy, mat, scene, layout, tmp = artist
     before_tree = _tree(mat)
@@ -211,8 +211,8 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
 
     from addon.blender.preview import load_environment, resolve_environment
     from addon.core.edit import EditTargets
-    from addon.core.merl import read_merl
-    from addon.core.render import TableBRDF, bake_sphere, sphere_layout
+    from addon.core.file.merl import read_merl
+    from addon.core.preview import TableBRDF, bake_sphere, sphere_layout
 
     bpy, mat, scene, layout, tmp = artist
     live = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.live"]
@@ -228,7 +228,7 @@ def test_a_slider_move_updates_the_edited_half_of_the_preview(artist):
     body = slice(top + 12, top + d)  # below the labels
     np.testing.assert_array_equal(after[body, l0 : l0 + d], before[body, l0 : l0 + d])
     # the edited sphere: the bake of the draft synthesis of the new sliders, upsampled
-    from addon.core.render.live import LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
+    from addon.core.preview.live import LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
 
     table = read_merl(state.source_path)
     # the draft reads its scale off the material's curve, stored with the analysis
@@ -324,8 +324,8 @@ def test_the_fitted_lobes_render_the_edit_and_keep_their_lookup_in_the_blend(art
     """The lobe mixture (no OSL needed): plain nodes reading a packed lookup image; under a
     constant sky a pixel is the directional albedo of its view, which the fit meets per view;
     save, delete the lookup's file, reopen: the same pixels (same seed)."""
-    from addon.core.merl import read_merl
-    from addon.core.render import Environment, TableBRDF, relative_rmse, render_reference
+    from addon.core.file.merl import read_merl
+    from addon.core.preview import Environment, TableBRDF, relative_rmse, render_reference
 
     bpy, mat, scene, layout, tmp = artist
     before_tree = _tree(mat)
@@ -408,7 +408,7 @@ def test_the_glossy_node_renders_the_lobe_the_fit_models(fresh):
     import math
     import sys
 
-    from addon.core.lobes import ggx_lobe, shadowing_for
+    from addon.core.material.lobes import ggx_lobe, shadowing_for
 
     bpy = fresh
     material = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.material"]

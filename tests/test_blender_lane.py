@@ -73,7 +73,7 @@ def lane_run(tmp_path_factory):
 
 
 def test_legacy_addon_runs_the_whole_flow_in_blender_34(lane_run, sample_table):
-    from addon.core.profiles import compute_profiles
+    from addon.core.profiles.compute import compute_profiles
 
     res, out, tmp = lane_run
     log = res.stdout + res.stderr

@@ -1,12 +1,12 @@
-"""The lobe mixture the artist's material renders outside OSL (``core.lobes``): its GGX lobe
+"""The lobe mixture the artist's material renders outside OSL (``core.material.lobes``): its GGX lobe
 against the samples' independent GGX, its lookup interpolation, and the fit on tables built
 from lobes it can represent (their roughness and colours are known)."""
 
 import numpy as np
 import pytest
 
-from addon.core import lobes as L
-from addon.core.merl import tabulate
+from addon.core.file.merl import tabulate
+from addon.core.material import lobes as L
 
 
 def _directions(n, seed):
@@ -103,7 +103,7 @@ def test_the_near_mirror_floor_bounds_what_any_isotropic_lobes_reach():
     diffuse term: a few per cent, the table's own cells), large once the table's first theta_h cells get a fifth-order pattern in
     phi_d (what the near-mirror measured materials show), and never above the error the fit
     then reaches: a lower bound, checked against ``measure`` on the fit."""
-    from addon.core.merl import cell_centres
+    from addon.core.file.merl import cell_centres
 
     r = L.DICTIONARY[1]
 

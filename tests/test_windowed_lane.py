@@ -149,9 +149,9 @@ def test_the_session_ran_to_the_end_without_a_traceback(lane):
 
 
 def test_load_a_missing_file_then_a_good_one_then_cancel_one(lane):
-    from addon.core.fits import fit_material
-    from addon.core.merl import read_merl
-    from addon.core.profiles import compute_profiles
+    from addon.core.file.merl import read_merl
+    from addon.core.fits.curves import fit_material
+    from addon.core.profiles.compute import compute_profiles
 
     data, _, gold, other = lane
     st = data["steps"]
@@ -196,9 +196,9 @@ def test_input_reaches_the_ui_while_apply_runs(lane):
 
 
 def test_apply_reaches_the_sliders_and_a_cancelled_apply_changes_nothing(lane):
-    from addon.core.fits import fit_material
-    from addon.core.merl import read_merl
-    from addon.core.profiles import compute_profiles
+    from addon.core.file.merl import read_merl
+    from addon.core.fits.curves import fit_material
+    from addon.core.profiles.compute import compute_profiles
 
     data, _, gold, _ = lane
     st = data["steps"]
@@ -279,8 +279,8 @@ def test_the_artists_material_without_osl(lane):
     built them (Diffuse and Glossy GGX nodes, colours from a packed lookup the Layer Weight
     indexes), EEVEE drew them in the 3D view, and Restore took them out. The stated errors are
     measured again here on the table Blender wrote (issue 28)."""
-    from addon.core.lobes import LobeFit, fit_lobes, measure
-    from addon.core.merl import read_merl
+    from addon.core.file.merl import read_merl
+    from addon.core.material.lobes import LobeFit, fit_lobes, measure
 
     data, _, _, _ = lane
     st = data["steps"]

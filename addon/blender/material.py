@@ -9,11 +9,11 @@ Ctrl-Z undoes them.
 The group holds one of
 - lobes (GGX and Beckmann Glossy, and GGX lobes times a Fresnel factor drawn by a Principled
   BSDF) and a diffuse lobe whose colours follow the view angle through a small packed lookup
-  image (``core.lobes``): plain Diffuse, Glossy, Principled, Mix, Layer Weight, Math and Image
+  image (``core.material.lobes``): plain Diffuse, Glossy, Principled, Mix, Layer Weight, Math and Image
   Texture nodes, so any engine and any Blender (EEVEE, Cycles on GPU, Debian's 3.4); an
   approximation whose error, and the least error any mix of Blender's closures reaches on the
-  table (``core.node_bound``), the panel states;
-- a Principled BSDF fitted to the edited table (``core.principled``): the same reach, farther
+  table (``core.material.node_bound``), the panel states;
+- a Principled BSDF fitted to the edited table (``core.material.principled``): the same reach, farther
   from measured materials, but one node an artist can keep editing;
 - the tabulated OSL shader reading the edited table (Cycles with OSL only): the material itself.
 """
@@ -104,18 +104,18 @@ def _glossy_node(group, anisotropic=False, distribution="GGX"):
     # anisotropic one starts at anisotropy 0.5): Glossy itself, unless the lobe is stretched
     kind = "ShaderNodeBsdfAnisotropic" if anisotropic or bpy.app.version >= (4, 0, 0) else "ShaderNodeBsdfGlossy"
     node = group.nodes.new(kind)
-    node.distribution = distribution  # GGX or BECKMANN, single scattering: the model core.lobes fits
+    node.distribution = distribution  # GGX or BECKMANN, single scattering: the model core.material.lobes fits
     _set_input(node, ("Anisotropy",), 0.0)  # isotropic unless the lookup drives it
     return node
 
 
 def _fresnel_node(group, roughness):
     """A Principled BSDF drawing a round GGX lobe times its metal's Fresnel factor of theta_d
-    (``core.lobes.fresnel_factor``): metallic 1, base colour black, single-scattering GGX; in 3.x
+    (``core.material.lobes.fresnel_factor``): metallic 1, base colour black, single-scattering GGX; in 3.x
     its "Specular" (which sets that factor's IOR) at ``lobes.PRINCIPLED_3X_SPECULAR``; no coat,
     sheen, transmission, subsurface or emission; a white specular tint (4.x: the F82 tint that
     leaves Schlick's factor as it is)."""
-    from ..core.lobes import PRINCIPLED_3X_SPECULAR
+    from ..core.material.lobes import PRINCIPLED_3X_SPECULAR
 
     node = group.nodes.new("ShaderNodeBsdfPrincipled")
     if hasattr(node, "distribution"):
@@ -202,7 +202,7 @@ def _across_plane_of_incidence(group, parent=None):
 
 def lobe_title(kind, roughness):
     """How a lobe's frame names it."""
-    from ..core.lobes import BECKMANN, FRESNEL
+    from ..core.material.lobes import BECKMANN, FRESNEL
 
     if kind == FRESNEL:
         return f"GGX lobe × Fresnel (roughness {roughness:.3f})"
@@ -210,7 +210,7 @@ def lobe_title(kind, roughness):
 
 
 def fill_lobes(group, fit, image):
-    """The group's content for a ``core.lobes`` fit: the view angle u = theta_o / 90° from the
+    """The group's content for a ``core.material.lobes`` fit: the view angle u = theta_o / 90° from the
     Layer Weight's facing ratio (1 - |N.I|), one Image Texture per row of the lookup ``image``
     (row r read at v = (r + 1/2) / rows: texel centres, so linear filtering never mixes rows),
     its colour driving a Diffuse BSDF (row 0), a Glossy BSDF (row k: GGX or Beckmann) or, for a
@@ -220,7 +220,7 @@ def fill_lobes(group, fit, image):
     A stretched lobe reads its aspect q from row K + k; with the tangent across the plane of
     incidence, Cycles' anisotropy 1 / sqrt(q) - 1 (q > 1) or 1 - sqrt(q) (q < 1) gives alpha
     sqrt(q) across it and alpha / sqrt(q) in it (Cycles' mapping, the same in 3.x and 4.x)."""
-    from ..core.lobes import BECKMANN, FRESNEL
+    from ..core.material.lobes import BECKMANN, FRESNEL
 
     group.nodes.clear()
     out = group.nodes.new("NodeGroupOutput")
@@ -512,7 +512,7 @@ def relink_textures():
             os.makedirs(folder, exist_ok=True)
             path = os.path.join(folder, name)
             if not os.path.isfile(path):
-                from ..core.atomic import atomic_path
+                from ..core.file.atomic import atomic_path
 
                 with atomic_path(path, ".exr") as tmp:
                     with open(tmp, "wb") as fh:

@@ -148,7 +148,7 @@ RANGES = {
         Range("samples", 1, MAX_SAMPLES, integer=True),
         Range("lobe_samples", 1, MAX_LOBE_SAMPLES, integer=True),
         Range("bake_samples", 1, MAX_BAKE_SAMPLES, integer=True),
-        # the render engine's own parameters (core/render), named as in its functions
+        # the render engine's own parameters (core/preview), named as in its functions
         Range("diameter", 2, MAX_RENDER_SIZE, integer=True, flag="diameter"),
         Range("light_samples", 0, MAX_BAKE_SAMPLES, integer=True, flag="light_samples"),
         Range("spp", 0, MAX_REFERENCE_SAMPLES, integer=True, flag="spp"),

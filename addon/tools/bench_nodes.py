@@ -1,7 +1,7 @@
 """``python -m addon.tools.bench_nodes [--quick] [names...]``: the artist's material outside OSL
 (issue 28), engine only. For every measured material and its edits (σ̃² ×0.5, ×2, strength
-0.5), the lobe mixture the nodes render (``core.lobes``) and the single Principled BSDF
-(``core.principled``) against the edited table: BRDF error and directional-albedo error (as
+0.5), the lobe mixture the nodes render (``core.material.lobes``) and the single Principled BSDF
+(``core.material.principled``) against the edited table: BRDF error and directional-albedo error (as
 each fit states them), the lobe fit's time, the table's near-mirror floor (the error no
 setup of isotropic closures can go below, ``lobes.near_mirror_floor``) and the best error of
 any view-dependent mix of Blender's closure shapes (``node_bound``), and the lobes' error over
@@ -25,8 +25,8 @@ QUICK = ("rgl/paper_blue", "rgl/cm_white", "rgl/satin_gold", "rgl/ilm_l3_37_meta
 def edited_tables(table):
     """(label, table) for the table and its three edits (an edit that fails is reported)."""
     from ..core.edit import EditTargets, edit
-    from ..core.fits import fit_material
-    from ..core.profiles import compute_profiles
+    from ..core.fits.curves import fit_material
+    from ..core.profiles.compute import compute_profiles
 
     prof = compute_profiles(table)
     fit = fit_material(prof)
@@ -47,10 +47,10 @@ def bench_nodes(names, principled=True, out=print, reuse=None, write=None):
 
     import samples
 
-    from ..core.lobes import fit_lobes, near_mirror_floor
-    from ..core.merl import read_merl
-    from ..core.node_bound import node_bound
-    from ..core.principled import fit_principled
+    from ..core.file.merl import read_merl
+    from ..core.material.lobes import fit_lobes, near_mirror_floor
+    from ..core.material.node_bound import node_bound
+    from ..core.material.principled import fit_principled
 
     known = {}
     if reuse:

@@ -1,4 +1,4 @@
-"""Run inside Debian's ``blender -b`` (3.4): Cycles renders a stretched lobe of ``core.lobes``
+"""Run inside Debian's ``blender -b`` (3.4): Cycles renders a stretched lobe of ``core.material.lobes``
 through 3.4's Anisotropic node as the fit models it, and a Beckmann lobe and a Fresnel lobe
 (3.4's Principled v1 factor) too (tests/_stretched.py).
 

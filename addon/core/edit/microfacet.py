@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..merl import N_CELLS, RES_PD, RES_TD, RES_TH
+from ..file.merl import N_CELLS, RES_PD, RES_TD, RES_TH
 
 HALF_PI = 0.5 * math.pi
 FORMS = ("separable", "correlated")

@@ -12,12 +12,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..blas import one_thread
-from ..fits import LAMBERT_VARIANCE, fit_material
-from ..integrate import directional_albedo, get_operator
-from ..merl import RES_TD, MerlTable
-from ..profiles import Profiles, compute_profiles
+from ..file.merl import RES_TD, MerlTable
+from ..fits.curves import LAMBERT_VARIANCE, fit_material
+from ..profiles.compute import Profiles, compute_profiles
+from ..profiles.integrate import directional_albedo, get_operator
 from . import reciprocal as R
+from .blas import one_thread
 from .fidelity import Fidelity, measure
 from .reach import ReachableRegion, reachable_region
 from .scale import roughness_source, source_key

@@ -91,7 +91,7 @@ def principled_brdf(fit, wi, wo):
 def view_quadrature(views_deg, n_phi=N_PHI_H):
     """Per view: (wi (n, 3), wo (3,), weights cos(theta_i) d omega_i), through the half vector,
     one point per theta_h cell of the table (its square-root spacing resolves narrow peaks)."""
-    from .merl import theta_h_edges
+    from ..file.merl import theta_h_edges
 
     edges = theta_h_edges()
     th, dth = 0.5 * (edges[:-1] + edges[1:]), np.diff(edges)
@@ -189,7 +189,7 @@ def fit_principled(table) -> PrincipledFit:
     roughness, and for each roughness the other inputs in closed form."""
     from scipy.optimize import minimize_scalar
 
-    from .merl import lookup
+    from ..file.merl import lookup
 
     wi, wo, w, sizes = _quadrature()
     rho, valid = lookup(table, wi, wo)

@@ -19,8 +19,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import ndtr, ndtri
 
-from .. import truncated as _truncated
-from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, energy_curve
+from ..fits import truncated as _truncated
+from ..fits.curves import LAMBERT_VARIANCE, MIN_SIGMA2, energy_curve
 from ..geometry import HALF_PI
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
@@ -32,7 +32,7 @@ MAX_S = _truncated.MAX_S
 # --- truncated Gaussians on [-pi/2, pi/2] ---------------------------------------------------
 
 
-# The truncated Gaussian's mass and its tail-safe bounds are the one solver's (core.truncated).
+# The truncated Gaussian's mass and its tail-safe bounds are the one solver's (core.fits.truncated).
 _oriented = _truncated._oriented
 truncnorm_mass = _truncated.mass
 
@@ -60,7 +60,7 @@ def truncnorm_sample(m, s, u):
 
 def truncated_params(mean, var, iters=40):
     """(m, s) of the Gaussian whose truncation to [-pi/2, pi/2] has this mean and variance,
-    by the one rule of ``core.truncated`` (the mean kept, the variance capped where no truncated
+    by the one rule of ``core.fits.truncated`` (the mean kept, the variance capped where no truncated
     Gaussian reaches it). The OSL shaders run the same iteration."""
     m, s, _ = _truncated.solve(mean, var, iters)
     return m, s
@@ -238,11 +238,11 @@ class TableBRDF:
     kind = "table"
 
     def __init__(self, table, profiles=None, kd=None):
-        from ..merl import N_CELLS
+        from ..file.merl import N_CELLS
 
         self.table = table
         if profiles is None:
-            from ..profiles import compute_profiles
+            from ..profiles.compute import compute_profiles
 
             profiles = compute_profiles(table, max_order=2)
         self.profiles = profiles
@@ -268,7 +268,7 @@ class TableBRDF:
         return self._key
 
     def evaluate(self, theta, phi, theta_o):
-        from ..merl import cell_indices_view
+        from ..file.merl import cell_indices_view
 
         to = np.asarray(theta_o, float)
         cells = cell_indices_view(theta, phi, np.sin(to), np.cos(to))

@@ -7,8 +7,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..file.merl import MerlTable, horizon_mask
 from .integrate import MAX_ORDER, centred_view_sums, default_views, get_operator, table_sums
-from .merl import MerlTable, horizon_mask
 from .moments import CHANNELS, KEYS_BY_ORDER, PROFILE_KEYS, monomials, profiles_from_sums, shift_amplification
 from .quadrature import RuleParams, slice_rule
 
@@ -51,7 +51,7 @@ class Profiles:
     def from_json(cls, data: dict, name: str = "") -> "Profiles":
         """Profiles from the JSON ``to_json`` writes; ValueError naming the first fault (wrong
         types, lists of different lengths, values out of range) for anything else."""
-        from .limits import MAX_JSON_LIST
+        from ..limits import MAX_JSON_LIST
 
         def arr(v, where, length=None, finite=False):
             if not isinstance(v, list):
@@ -102,7 +102,7 @@ ROBUST_PERCENTILE = 0.05
 
 def _slice_lower_cosine(cells):
     """cos of the lower direction's polar angle at each cell's centre (phi_h = 0)."""
-    from .merl import RES_PD, RES_TD, RES_TH
+    from ..file.merl import RES_PD, RES_TD, RES_TH
 
     ith, rest = np.divmod(np.asarray(cells), RES_TD * RES_PD)
     itd, ipd = np.divmod(rest, RES_PD)
@@ -193,7 +193,7 @@ def compute_profiles(
     ``floor`` picks the automatic floor: ``min`` (the paper's) or ``robust`` (diffuse_floor).
     ``progress(done, total)`` is called while the (cached) operator is first built.
     """
-    from .limits import check
+    from ..limits import check
 
     max_order = check("max_order", max_order, "max_order")
     if floor not in FLOORS:
@@ -299,7 +299,7 @@ def _trilinear_sums(table, kd, theta_o, max_order, params, progress):
     one (the renormalisation over measured neighbours then depends on the table). It reads
     the specular part (max(rho - kd, 0) per cell, as the nearest path and the cached
     trilinear operator do), so all three agree where their masks do."""
-    from .merl import MerlTable, lookup_angles
+    from ..file.merl import MerlTable, lookup_angles
 
     params = replace(params, exact=False)
     spec_table = MerlTable(np.maximum(table.rho - kd[:, None], 0.0) * table.valid, table.valid, None)

@@ -20,7 +20,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .geometry import HALF_PI, view_centred_angles
+from ..geometry import HALF_PI, view_centred_angles
 
 RES_TH, RES_TD, RES_PD = 90, 90, 180
 
@@ -229,7 +229,7 @@ def _composite(lo, hi, panels, n_gauss):
 
 
 def _strip_cells(theta_o):
-    from .merl import cell_indices_view
+    from ..file.merl import cell_indices_view
 
     se, ce = np.sin(theta_o), np.cos(theta_o)
     return lambda theta, phi: cell_indices_view(np.asarray(theta, float), np.asarray(phi, float), se, ce)
@@ -309,7 +309,7 @@ def slice_rule(theta_o: float, params: RuleParams = RuleParams()) -> SliceRule:
 def slice_rule_parts(theta_o: float, params: RuleParams = RuleParams(), chunk: int = 360):
     """``slice_rule`` in pieces (``chunk`` rays at a time, then the strips), in the same node
     order: a grazing view has ~2 M nodes, and building them whole would dominate the peak."""
-    from .geometry import half_diff_from_directions, view_centred
+    from ..geometry import half_diff_from_directions, view_centred
 
     a, b = np.radians(params.fade_from), np.radians(params.fade_to)
     if params.exact and theta_o >= np.radians(70.0) - 1e-9:

@@ -23,7 +23,7 @@ measured at views between the texels, where that interpolation shows.
 
 The fit: for every texel view, the weights are non-negative least squares of the table against
 the lobes (cosine-weighted, through the half vector on the table's own theta_h cells, as
-``core.principled``), with the view's directional albedo as one extra, strongly weighted
+``core.material.principled``), with the view's directional albedo as one extra, strongly weighted
 equation, so that the energy the artist sees per view is the table's. The roughness of the
 lobes is picked greedily from a dictionary (the one that lowers the cost most, then the next),
 the cost summed over views with each view's share of a sphere's pixels.
@@ -303,7 +303,7 @@ def lobes_brdf(fit: LobeFit, wi, wo):
 def _table_at_views(table, views_deg):
     """Per view: (deg, wi, wo, weights, rho (3, n)) on ``view_quadrature``'s directions where
     the table was measured (missing cells left out)."""
-    from .merl import lookup
+    from ..file.merl import lookup
 
     for deg, (wi, wo, w) in zip(views_deg, view_quadrature(views_deg, N_PHI_H)):
         rho, valid = lookup(table, wi, np.broadcast_to(wo, wi.shape))
@@ -608,7 +608,7 @@ def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg=NEAR_MIR
     those rings outside that span, no such setup follows. Returns that part's share of the
     table's norm in ``measure``'s weighting (the same denominator; the rings integrated more
     finely over azimuth, each by its weighted least-squares residual)."""
-    from .merl import lookup, theta_h_edges
+    from ..file.merl import lookup, theta_h_edges
 
     den = sum(pixel_share(deg) * float(np.sum(w * rho**2)) for deg, _, _, w, rho in _table_at_views(table, views_deg))
     if den <= 0.0:

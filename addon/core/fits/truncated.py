@@ -16,7 +16,7 @@ import math
 import numpy as np
 from scipy.special import log_ndtr, ndtr
 
-from .geometry import HALF_PI
+from ..geometry import HALF_PI
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)

@@ -13,7 +13,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from ..safeio import read_input
+from ..file.safeio import read_input
 from .estimators import bake_sphere
 
 
@@ -60,7 +60,7 @@ class BakeCache:
 
     def get(self, brdf, env, diameter, lobe_samples=64, seed=0):
         """(radiance (D, D, 3), coverage (D, D), key), baking only on a miss."""
-        from .. import cachefs
+        from ..file import cachefs
 
         key = bake_key(brdf, env, diameter, lobe_samples, seed)
         if key in self._mem:
@@ -77,7 +77,7 @@ class BakeCache:
         self.computed.append(key)
         self._store(key, rgb, cov)
         if path:
-            from ..atomic import atomic_path
+            from ..file.atomic import atomic_path
 
             try:
                 cachefs.cache_folder(self.folder)
@@ -101,7 +101,7 @@ def _read_bake(path, diameter):
     """(radiance, coverage) of a sealed bake file, or None if it is damaged or not a bake."""
     import io
 
-    from .. import cachefs
+    from ..file import cachefs
 
     data = cachefs.read_verified(path)
     if data is None:
@@ -123,6 +123,6 @@ def _read_bake(path, diameter):
 
 def prune(folder, prefix, suffix, keep):
     """Keep the ``keep`` most recently used sealed entries ``prefix*suffix`` (cachefs.prune)."""
-    from .. import cachefs
+    from ..file import cachefs
 
     cachefs.prune(folder, keep, 1 << 62, prefix=prefix)
