@@ -7,4 +7,6 @@ any engine and any Blender. Modules in the order they run:
   follow the view, fitted to the table (the Lobes approximation).
 - ``node_bound``: the least error any view-dependent mix of Blender's closures reaches on the
   table: how close any node setup could come (the panel's Find the Bound).
+
+Their GGX and Beckmann lobes are ``core.microsurface``'s, with the Lambda Cycles evaluates.
 """

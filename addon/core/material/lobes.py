@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..microsurface import DISTRIBUTIONS, masking, smith_lambda, stretched_ndf
 from .principled import pixel_share, reflect_about, view_quadrature
 
 N_VIEWS = 18  # texels of the lookup over theta_o in [0, 90°]
@@ -193,22 +194,16 @@ def ggx_lobe(alpha, wi, wo, shadowing="correlated", aspect=1.0):
     return microfacet_lobe("ggx", alpha, wi, wo, shadowing, aspect)
 
 
-def _lambda(distribution, a2t2):
-    """Smith's Lambda from alpha² tan² theta of a direction (alpha along its azimuth): exact for
-    GGX; for Beckmann the rational fit Cycles uses (Walter et al. 2007)."""
-    if distribution == "ggx":
-        return 0.5 * (np.sqrt(1.0 + a2t2) - 1.0)
-    a = 1.0 / np.sqrt(np.maximum(a2t2, 1e-300))
-    return np.where(a < 1.6, (1.0 - 1.259 * a + 0.396 * a * a) / (3.535 * a + 2.181 * a * a), 0.0)
-
-
 def microfacet_lobe(distribution, alpha, wi, wo, shadowing="correlated", aspect=1.0):
     """Cycles' GGX or Beckmann reflection without Fresnel, D G / (4 cos_i cos_o), for unit
     vectors (..., 3). ``aspect`` q (scalar or per point) stretches it across the plane of
     incidence of ``wo``: alpha sqrt(q) across, alpha / sqrt(q) in it (the tangent the node setup
-    gives Cycles). The nodes use GGX; Beckmann serves ``node_bound``."""
-    if distribution not in ("ggx", "beckmann"):
+    gives Cycles). The nodes use GGX; Beckmann serves ``node_bound``. Lambda is what Cycles
+    evaluates: exact for GGX, Walter et al.'s rational fit for Beckmann."""
+    if distribution not in DISTRIBUTIONS:
         raise ValueError(f"unknown distribution {distribution!r}")
+    if shadowing not in SHADOWING:
+        raise ValueError(f"unknown shadowing {shadowing!r}")
     alpha = max(float(alpha), 1e-7)
     h = wi + wo
     h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
@@ -226,25 +221,13 @@ def microfacet_lobe(distribution, alpha, wi, wo, shadowing="correlated", aspect=
         return v[..., 0] * cx + v[..., 1] * cy, -v[..., 0] * cy + v[..., 1] * cx
 
     hx, hy = split(h)
-    hz = np.clip(h[..., 2], 0.0, 1.0)
-    if distribution == "ggx":
-        d = 1.0 / (np.pi * a_in * a_across * ((hx / a_in) ** 2 + (hy / a_across) ** 2 + hz * hz) ** 2)
-    else:  # exp(-tan² theta_h / alpha(phi_h)²) / (pi alpha_x alpha_y cos⁴ theta_h)
-        s2 = ((hx / a_in) ** 2 + (hy / a_across) ** 2) / np.maximum(hz * hz, 1e-300)
-        d = np.exp(-s2) / (np.pi * a_in * a_across * np.maximum(hz, 1e-300) ** 4)
+    d = stretched_ndf(distribution, hx, hy, h[..., 2], a_in, a_across)
 
     def lam(v, c):
         x, y = split(v)
-        return _lambda(distribution, ((a_in * x) ** 2 + (a_across * y) ** 2) / (c * c))
+        return smith_lambda(distribution, ((a_in * x) ** 2 + (a_across * y) ** 2) / (c * c), rational=True)
 
-    lam_i, lam_o = lam(wi, ci), lam(wo, co)
-    if shadowing == "correlated":
-        g = 1.0 / (1.0 + lam_i + lam_o)
-    elif shadowing == "separable":
-        g = 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
-    else:
-        raise ValueError(f"unknown shadowing {shadowing!r}")
-    return d * g / (4.0 * ci * co)
+    return d * masking(lam(wi, ci), lam(wo, co), shadowing) / (4.0 * ci * co)
 
 
 def fresnel_factor(wi, wo, shadowing="correlated"):
