@@ -16,4 +16,9 @@ against), ``geometry`` (directions, the Rusinkiewicz angles, the paper's view-ce
 written once for the samples, the edit's microfacet reading and the artist's material). A
 package imports these and the packages before it in the flow that it needs, never one after
 it: tests/test_layout.py holds the table.
+
+Each package's ``__all__`` is its public face, what the front ends and a script call. Every
+size, count and slider value a public function takes is checked against ``limits.RANGES``
+before any work, and refused with one line naming it and its range, as the command line and the
+panel refuse it (tests/test_ranges.py finds them all).
 """

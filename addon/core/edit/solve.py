@@ -14,6 +14,7 @@ import numpy as np
 
 from ..file.merl import RES_TD, MerlTable
 from ..fits.curves import LAMBERT_VARIANCE, fit_material
+from ..limits import TARGET_FIELDS, check_targets
 from ..profiles.compute import Profiles, compute_profiles
 from ..profiles.integrate import directional_albedo, get_operator
 from . import reciprocal as R
@@ -364,6 +365,7 @@ def edit(
     from the same inputs instead of solving again (the live preview's, for Apply). ``stop()``:
     asked between the synthesis's steps; True gives the edit up (``Superseded``), so that work
     nobody will see does not hold a core."""
+    check_targets(targets, TARGET_FIELDS)  # before any work: what the command line and the panel refuse
     if prof is None:
         prof = compute_profiles(table)
     if fit is None:

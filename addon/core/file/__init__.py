@@ -10,3 +10,26 @@ anything (SPEC §2, §7). Modules in the order a run uses them:
 - ``merl``: the MERL table: read, validate, write, look up, tabulate an analytic BRDF.
 - ``nbrdf``: Neural-BRDF networks decoded into MERL tables.
 """
+
+from .merl import MerlError, MerlTable, lookup, read_merl, tabulate, write_merl
+from .names import material_name, safe_name
+from .nbrdf import WeightsError, list_materials, load_network, read_table
+from .safeio import UnsafePath
+from .sources import parse_source
+
+__all__ = [
+    "MerlError",
+    "MerlTable",
+    "UnsafePath",
+    "WeightsError",
+    "list_materials",
+    "load_network",
+    "lookup",
+    "material_name",
+    "parse_source",
+    "read_merl",
+    "read_table",
+    "safe_name",
+    "tabulate",
+    "write_merl",
+]

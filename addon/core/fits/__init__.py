@@ -7,3 +7,27 @@ they drive. Modules in the order they run:
 - ``truncated``: the truncated Gaussians of the moment model (paper Eq. 7-8), the one solver
   that model mode's edit, the preview's lobe and the OSL shaders share.
 """
+
+from . import truncated
+from .curves import (
+    LAMBERT_VARIANCE,
+    MIN_SIGMA2,
+    correlation_curve,
+    energy_curve,
+    fit_correlation,
+    fit_material,
+    fit_set,
+    load_set_points,
+)
+
+__all__ = [
+    "LAMBERT_VARIANCE",
+    "MIN_SIGMA2",
+    "correlation_curve",
+    "energy_curve",
+    "fit_correlation",
+    "fit_material",
+    "fit_set",
+    "load_set_points",
+    "truncated",
+]

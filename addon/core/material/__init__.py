@@ -10,3 +10,20 @@ any engine and any Blender. Modules in the order they run:
 
 Their GGX and Beckmann lobes are ``core.microsurface``'s, with the Lambda Cycles evaluates.
 """
+
+from . import node_bound  # the module: its function of the same name would hide it
+from .lobes import LobeFit, fit_lobes, lobes_brdf, measure, near_mirror_floor, shadowing_for
+from .principled import PrincipledFit, fit_principled, principled_brdf
+
+__all__ = [
+    "LobeFit",
+    "PrincipledFit",
+    "fit_lobes",
+    "fit_principled",
+    "lobes_brdf",
+    "measure",
+    "near_mirror_floor",
+    "node_bound",
+    "principled_brdf",
+    "shadowing_for",
+]

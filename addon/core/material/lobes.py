@@ -488,9 +488,9 @@ def _choose_aspects(vs, n_lobes, n_aspects, shares, round_index=0, round_views=(
 
 def fit_lobes(
     table,
-    n_lobes=N_LOBES,
+    n_lobes: int = N_LOBES,
     shadowing="correlated",
-    n_views=N_VIEWS,
+    n_views: int = N_VIEWS,
     dictionary=DICTIONARY,
     aspects=ASPECTS,
     kinds=KINDS,
@@ -500,6 +500,9 @@ def fit_lobes(
     per view was measured too: no gain, issue 28); each Glossy lobe's aspect may change from
     view to view (``aspects=(1.0,)``: isotropic lobes). Lobes whose weight is 0 at every view
     are dropped (the node tree draws no closure for them)."""
+    from ..limits import check
+
+    n_lobes, n_views = check("lobes", n_lobes, "n_lobes"), check("lookup_texels", n_views, "n_views")
     samples = list(_table_at_views(table, texel_views_deg(n_views)))
     return _fit_samples(samples, n_lobes, shadowing, n_views, dictionary, aspects, kinds, table)
 
@@ -580,7 +583,7 @@ RING_HARMONICS = 2  # the azimuthal orders a closure may follow on such a ring (
 RING_AZIMUTHS = 96
 
 
-def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg=NEAR_MIRROR_DEG):
+def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg: float = NEAR_MIRROR_DEG):
     """A lower bound on ``measure``'s BRDF error for any node setup of isotropic closures (issue 28).
 
     An isotropic closure (Diffuse, Glossy, Principled, Sheen; EEVEE renders every closure so)
@@ -592,7 +595,9 @@ def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg=NEAR_MIR
     table's norm in ``measure``'s weighting (the same denominator; the rings integrated more
     finely over azimuth, each by its weighted least-squares residual)."""
     from ..file.merl import lookup, theta_h_edges
+    from ..limits import check
 
+    theta_h_max_deg = check("near_mirror_deg", theta_h_max_deg, "theta_h_max_deg")
     den = sum(pixel_share(deg) * float(np.sum(w * rho**2)) for deg, _, _, w, rho in _table_at_views(table, views_deg))
     if den <= 0.0:
         return 0.0

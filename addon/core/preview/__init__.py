@@ -29,6 +29,7 @@ from .cache import BakeCache, bake_key
 from .envmap import Environment, direction_to_uv, uv_to_direction
 from .estimators import bake_sphere, normalized_rmse, reference_sphere, relative_rmse, render_baked, render_reference
 from .lobe import (
+    HalfVectorSampler,
     LobeTable,
     ModelBRDF,
     MomentParams,
@@ -52,6 +53,7 @@ __all__ = [
     "normalized_rmse",
     "render_baked",
     "render_reference",
+    "HalfVectorSampler",
     "LobeTable",
     "ModelBRDF",
     "MomentParams",

@@ -9,3 +9,19 @@ mean, covariance, co-skewness and co-kurtosis. Modules in the order they run:
 - ``compute``: the diffuse/specular split and ``compute_profiles``: a table's ``Profiles``,
   and their JSON.
 """
+
+from .compute import FLOORS, Profiles, compute_profiles, diffuse_floor, function_profiles, monte_carlo_profiles
+from .integrate import default_views, directional_albedo
+from .quadrature import RuleParams
+
+__all__ = [
+    "FLOORS",
+    "Profiles",
+    "RuleParams",
+    "compute_profiles",
+    "default_views",
+    "diffuse_floor",
+    "directional_albedo",
+    "function_profiles",
+    "monte_carlo_profiles",
+]

@@ -328,8 +328,10 @@ def function_profiles(f, theta_o, max_order: int = MAX_ORDER, **rule):
     """Profiles of an analytic slice ``f(theta, phi, theta_o) -> (C, n)``: dict key -> (views, C).
 
     This is the integrator's function interface, used against closed forms."""
+    from ..limits import check
     from .integrate import function_sums
 
+    max_order = check("max_order", max_order, "max_order")
     theta_o = np.atleast_1d(np.asarray(theta_o, dtype=float))
     sums, ct, cp = function_sums(f, theta_o, max_order, **rule)
     return _stats(sums, ct, max_order, cp)
@@ -337,7 +339,10 @@ def function_profiles(f, theta_o, max_order: int = MAX_ORDER, **rule):
 
 def monte_carlo_profiles(evaluate, theta_o, n_samples: int, seed: int = 0, max_order: int = MAX_ORDER):
     """The paper's estimator (Eq. 6), for comparison: dict key -> (views, C)."""
+    from ..limits import check
     from .integrate import monte_carlo_sums
 
+    n_samples = check("mc_samples", n_samples, "n_samples")
+    seed, max_order = check("seed", seed, "seed"), check("max_order", max_order, "max_order")
     theta_o = np.atleast_1d(np.asarray(theta_o, dtype=float))
     return _stats(monte_carlo_sums(evaluate, theta_o, n_samples, seed, max_order), -theta_o, max_order)

@@ -653,9 +653,9 @@ def directional_albedo(table, views=None, stride: int = 1) -> np.ndarray:
     the profiles' default views); with ``stride``, every stride-th view and the last one only.
     An edit measures it at its analysed views, with the same operator as its profiles: a second
     set of views cost a second operator (28 s cold)."""
-    from ..limits import MAX_ELEVATIONS, check_int
+    from ..limits import check
 
-    stride = check_int(stride, "stride", 1, MAX_ELEVATIONS)
+    stride = check("stride", stride, "stride")
     views = default_views() if views is None else np.asarray(views, float)
     op = get_operator(views)
     full = np.where(table.valid, table.rho, 0.0).T

@@ -180,6 +180,19 @@ def _fade(u, ua, ub):
     return 1.0 - t * t * t * (t * (6.0 * t - 15.0) + 10.0)
 
 
+# Each count and angle of a rule, and its declared range (core.limits.RANGES).
+_RULE_RANGES = {
+    "n_phi": "rule_lines",
+    "n_panels": "rule_lines",
+    "n_panels_phi": "rule_lines",
+    "n_gauss": "gauss_nodes",
+    "n_gauss_far": "gauss_nodes",
+    "n_probe": "rule_probes",
+    "fade_from": "fade_angle",
+    "fade_to": "fade_angle",
+}
+
+
 @dataclass(frozen=True)
 class RuleParams:
     """Resolution of the hybrid slice rule (defaults chosen by the benchmark)."""
@@ -202,6 +215,14 @@ class RuleParams:
     # How the operator reads the table at the rule's nodes: the nearest cell (MERL's own
     # reader), or trilinear between the 8 cells around each node (integrate._build_view).
     interp: str = "nearest"
+
+    def __post_init__(self):
+        from ..limits import check
+
+        for name, entry in _RULE_RANGES.items():
+            object.__setattr__(self, name, check(entry, getattr(self, name), name))
+        if not self.fade_from < self.fade_to:
+            raise ValueError(f"fade_to: must be above fade_from ({self.fade_from:g} deg), got {self.fade_to:g}")
 
     def key(self):
         key = (
