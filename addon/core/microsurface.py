@@ -39,7 +39,9 @@ def ndf(distribution: str, cos_h, alpha):
     if distribution == "beckmann":
         with np.errstate(divide="ignore", invalid="ignore"):
             d = np.exp(-(1.0 - c * c) / (c * c * a2)) / (np.pi * a2 * c**4)
-        return np.where(c > 0.0, d, 0.0)  # exp(-tan^2 / m^2) falls faster than 1 / cos^4 grows
+        # exp(-tan^2 / m^2) falls faster than 1 / cos^4 grows: 0 (exactly, in doubles) near the
+        # horizon, where the quotient would be 0 / 0
+        return np.where(c > 1e-12, d, 0.0)
     raise ValueError(f"unknown distribution {distribution!r}")
 
 
