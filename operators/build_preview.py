@@ -19,7 +19,7 @@ from ..addon.blender.images import label_image
 from ..addon.blender.jobs import BackgroundJob
 from ..addon.blender.live import preview_image_name, write_preview_image
 from ..addon.core.limits import MAX_RENDER_SIZE, MAX_SAMPLES
-from ..addon.core.render.live import FINAL_SAMPLES
+from ..addon.core.preview.live import FINAL_SAMPLES
 from .common import analysed_material
 
 SCENE = "BRDF Moments Preview"
@@ -71,13 +71,13 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
     def start(self, context):
         from ..addon.blender.preview import bake_cache, load_environment, resolve_environment
         from ..addon.blender.preview.build import resolve_path
-        from ..addon.core.cachefs import check_sealed
+        from ..addon.core.file.cachefs import check_sealed
+        from ..addon.core.file.merl import read_merl
+        from ..addon.core.file.nbrdf import read_table
+        from ..addon.core.file.safeio import guard_output
+        from ..addon.core.file.sources import source_exists, source_file
         from ..addon.core.limits import check_int
-        from ..addon.core.merl import read_merl
-        from ..addon.core.nbrdf import read_table
-        from ..addon.core.render import TableBRDF, sphere_layout
-        from ..addon.core.safeio import guard_output
-        from ..addon.core.sources import source_exists, source_file
+        from ..addon.core.preview import TableBRDF, sphere_layout
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
@@ -211,8 +211,8 @@ class BRDFMOMENTS_OT_build_preview(BackgroundJob, bpy.types.Operator):
         what = "sketch (moment model)" if job["mode"] == "model" else "tabulated"
         text = f"Preview ({info.path}, {what}) in the image '{preview_image_name(mat)}'"
         if self.render_to:
-            from ..addon.core.safeio import guard_output
-            from ..addon.core.sources import source_file
+            from ..addon.core.file.safeio import guard_output
+            from ..addon.core.file.sources import source_file
 
             out = bpy.path.abspath(self.render_to)
             guard_output(

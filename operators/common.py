@@ -38,10 +38,10 @@ def analysed_material(context, name=""):
 
 def analysis_work(path, floor="min"):
     """A function of ``report_progress`` that reads, analyses and fits ``path`` (no bpy)."""
-    from ..addon.core.fits import fit_material
-    from ..addon.core.nbrdf import read_table
-    from ..addon.core.profiles import compute_profiles
-    from ..addon.core.sources import source_exists
+    from ..addon.core.file.nbrdf import read_table
+    from ..addon.core.file.sources import source_exists
+    from ..addon.core.fits.curves import fit_material
+    from ..addon.core.profiles.compute import compute_profiles
 
     path = bpy.path.abspath(path) if path.startswith("//") else path
     if not path:
@@ -81,7 +81,7 @@ def source_stamp(path) -> str:
     import json
     import os
 
-    from ..addon.core.sources import source_file
+    from ..addon.core.file.sources import source_file
 
     try:
         st = os.stat(source_file(bpy.path.abspath(path)))

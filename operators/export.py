@@ -12,7 +12,7 @@ from .common import analysed_material
 
 
 def _write_json(data, path):
-    from ..addon.core.atomic import atomic_path
+    from ..addon.core.file.atomic import atomic_path
 
     with atomic_path(path, ".json") as tmp, open(tmp, "w") as fh:
         json.dump(data, fh, allow_nan=False)
@@ -23,7 +23,7 @@ def _write_png(mat, path, edited):
     """The profile figure with matplotlib where it exists, else the panel's own image."""
     import importlib.util
 
-    from ..addon.core.atomic import atomic_path
+    from ..addon.core.file.atomic import atomic_path
 
     state = mat.brdf_moments
     prof = state.edited_profiles() if edited else state.profiles()
@@ -80,7 +80,7 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        from ..addon.core.safeio import run_scope
+        from ..addon.core.file.safeio import run_scope
 
         try:
             with run_scope():
@@ -92,9 +92,9 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
         return {"FINISHED"}
 
     def _export(self, context):
-        from ..addon.core.cachefs import check_sealed
-        from ..addon.core.merl import read_merl, write_merl
-        from ..addon.core.names import distinct_name, safe_export_path
+        from ..addon.core.file.cachefs import check_sealed
+        from ..addon.core.file.merl import read_merl, write_merl
+        from ..addon.core.file.names import distinct_name, safe_export_path
 
         mat = analysed_material(context, self.material)
         state = mat.brdf_moments
@@ -106,7 +106,7 @@ class BRDFMOMENTS_OT_export(bpy.types.Operator):
         if self.what == "TABLE":
             if not state.edited_path or not os.path.isfile(state.edited_path):
                 raise ValueError(f"{mat.name}: nothing to export yet; press Apply to re-synthesize the table")
-            from ..addon.core.sources import source_file
+            from ..addon.core.file.sources import source_file
 
             dest = safe_export_path(folder, f"{base}_edited", ".binary")
             check_sealed(state.edited_path, "edited table (Apply's cache)")

@@ -14,7 +14,7 @@ _ITEMS_CACHE = {}
 
 
 def _network_items(self, context):
-    from ..addon.core.nbrdf import chooser_materials
+    from ..addon.core.file.nbrdf import chooser_materials
 
     path = bpy.path.abspath(self.filepath) if self.filepath else ""
     try:
@@ -51,7 +51,7 @@ class BRDFMOMENTS_OT_load_merl(BackgroundJob, bpy.types.Operator, ImportHelper):
     )
 
     def _spec(self):
-        from ..addon.core.nbrdf import chooser_materials, source_spec
+        from ..addon.core.file.nbrdf import chooser_materials, source_spec
 
         path = bpy.path.abspath(self.filepath) if self.filepath else ""
         names = chooser_materials(path)

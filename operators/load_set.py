@@ -23,7 +23,7 @@ class BRDFMOMENTS_OT_load_set(bpy.types.Operator, ImportHelper):
 
     def execute(self, context):
         from ..addon.blender.state import region_image
-        from ..addon.core.fits import load_set_points
+        from ..addon.core.fits.curves import load_set_points
 
         try:
             mat = target_material(context, self.material)

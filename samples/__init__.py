@@ -72,7 +72,7 @@ MEASURED_SETS = {
 
 def measured_names() -> list[str]:
     """All measured materials, ``SET/NAME`` (the 51 RGL and 8 Nielsen networks)."""
-    from addon.core.nbrdf import list_materials
+    from addon.core.file.nbrdf import list_materials
 
     return [
         f"{prefix}/{name}"
@@ -93,9 +93,9 @@ def measured_source(name: str):
 
 
 def _measured_path(name: str, force: bool) -> str:
-    from addon.core.cachefs import verified, write_seal
-    from addon.core.merl import write_merl
-    from addon.core.nbrdf import WeightsError, decode, load_network
+    from addon.core.file.cachefs import verified, write_seal
+    from addon.core.file.merl import write_merl
+    from addon.core.file.nbrdf import WeightsError, decode, load_network
 
     weights, key = measured_source(name)
     try:
@@ -127,8 +127,8 @@ def _measured_path(name: str, force: bool) -> str:
 
 def sample_path(name: str, force: bool = False) -> str:
     """Path of the named sample's MERL file, tabulating (or decoding) it first if needed."""
-    from addon.core.cachefs import verified, write_seal
-    from addon.core.merl import tabulate, write_merl
+    from addon.core.file.cachefs import verified, write_seal
+    from addon.core.file.merl import tabulate, write_merl
 
     if "/" in name:
         return _measured_path(name, force)

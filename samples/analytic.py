@@ -10,18 +10,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from addon.core.microsurface import masking, ndf, smith_lambda, tan2
+
 
 def _rgb(v):
     return np.broadcast_to(np.asarray(v, dtype=float), (3,)).copy()
 
 
-def _masking(lam_i, lam_o, form):
-    """Smith's shadowing-masking from the two Lambdas: separable or height-correlated."""
-    if form == "separable":
-        return 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
-    if form == "correlated":
-        return 1.0 / (1.0 + lam_i + lam_o)
-    raise ValueError(f"unknown masking {form!r}")
+def _microfacet(distribution, alpha, f0, kd, masking_form, wi, wo):
+    """kd / pi + F D G / (4 cos_i cos_o): the microsurface's D and Smith's G of ``masking_form``
+    (``core.microsurface``, exact), Schlick's F from ``f0``."""
+    wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+    h = wi + wo
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+    ch = np.clip(h[..., 2], 0.0, 1.0)
+    d = ndf(distribution, ch, alpha)
+    ci = np.clip(wi[..., 2], 1e-12, 1.0)
+    co = np.clip(wo[..., 2], 1e-12, 1.0)
+    a2 = alpha**2
+    g = masking(smith_lambda(distribution, a2 * tan2(ci)), smith_lambda(distribution, a2 * tan2(co)), masking_form)
+    cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
+    f0 = _rgb(f0).reshape((3,) + (1,) * ch.ndim)
+    fres = f0 + (1.0 - f0) * (1.0 - cd) ** 5
+    spec = fres * (d * g / (4.0 * ci * co))
+    return _rgb(kd).reshape((3,) + (1,) * ch.ndim) / np.pi + spec
 
 
 @dataclass(frozen=True)
@@ -51,7 +63,7 @@ class Phong:
 
 @dataclass(frozen=True)
 class GGX:
-    """Microfacet GGX with separable Smith masking and Schlick Fresnel over a Lambertian base."""
+    """Microfacet GGX with Smith masking and Schlick Fresnel over a Lambertian base."""
 
     roughness: float = 0.1  # GGX alpha
     f0: tuple = (0.04, 0.04, 0.04)
@@ -59,70 +71,21 @@ class GGX:
     masking: str = "separable"  # or "correlated": height-correlated Smith, 1 / (1 + L_i + L_o)
 
     def __call__(self, wi, wo):
-        wi, wo = np.asarray(wi, float), np.asarray(wo, float)
-        a2 = self.roughness**2
-        h = wi + wo
-        h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-        ch = np.clip(h[..., 2], 0.0, 1.0)
-        d = a2 / (np.pi * ((a2 - 1.0) * ch * ch + 1.0) ** 2)
-        ci = np.clip(wi[..., 2], 1e-12, 1.0)
-        co = np.clip(wo[..., 2], 1e-12, 1.0)
-
-        def g1(c):
-            t2 = (1.0 - c * c) / (c * c)
-            return 2.0 / (1.0 + np.sqrt(1.0 + a2 * t2))
-
-        def lam(c):  # Smith's Lambda for GGX
-            t2 = (1.0 - c * c) / (c * c)
-            return 0.5 * (np.sqrt(1.0 + a2 * t2) - 1.0)
-
-        cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
-        schlick = (1.0 - cd) ** 5
-        f0 = _rgb(self.f0).reshape((3,) + (1,) * ch.ndim)
-        fres = f0 + (1.0 - f0) * schlick
-        # The separable form as g1 g1 (the sample tables' bytes); the same value as _masking's.
-        g = g1(ci) * g1(co) if self.masking == "separable" else _masking(lam(ci), lam(co), self.masking)
-        spec = fres * (d * g / (4.0 * ci * co))
-        return _rgb(self.kd).reshape((3,) + (1,) * ch.ndim) / np.pi + spec
+        return _microfacet("ggx", self.roughness, self.f0, self.kd, self.masking, wi, wo)
 
 
 @dataclass(frozen=True)
 class Beckmann:
-    """Microfacet Beckmann with Smith masking (Walter et al. 2007's rational form of G1) and a
-    Schlick Fresnel over a Lambertian base; the defaults have no Fresnel and no base."""
+    """Microfacet Beckmann with Smith masking (exact Lambda) and a Schlick Fresnel over a
+    Lambertian base; the defaults have no Fresnel and no base."""
 
     roughness: float = 0.1  # Beckmann m
     f0: tuple = (1.0, 1.0, 1.0)
     kd: tuple = (0.0, 0.0, 0.0)
-    masking: str = "separable"  # or "correlated" (height-correlated Smith, exact Lambda)
+    masking: str = "separable"  # or "correlated" (height-correlated Smith)
 
     def __call__(self, wi, wo):
-        wi, wo = np.asarray(wi, float), np.asarray(wo, float)
-        m2 = self.roughness**2
-        h = wi + wo
-        h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-        ch = np.clip(h[..., 2], 1e-6, 1.0)
-        d = np.exp(-(1.0 - ch * ch) / (ch * ch * m2)) / (np.pi * m2 * ch**4)
-        ci = np.clip(wi[..., 2], 1e-12, 1.0)
-        co = np.clip(wo[..., 2], 1e-12, 1.0)
-
-        def g1(c):
-            a = c / (self.roughness * np.sqrt(np.maximum(1.0 - c * c, 1e-300)))
-            return np.where(a < 1.6, (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a), 1.0)
-
-        def lam(c):  # Smith's exact Lambda for Beckmann
-            from scipy.special import erf
-
-            a = c / (self.roughness * np.sqrt(np.maximum(1.0 - c * c, 1e-300)))
-            return 0.5 * (erf(a) - 1.0) + np.exp(-a * a) / (2.0 * a * np.sqrt(np.pi))
-
-        cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
-        f0 = _rgb(self.f0).reshape((3,) + (1,) * ch.ndim)
-        fres = f0 + (1.0 - f0) * (1.0 - cd) ** 5
-        # The separable form keeps Walter et al.'s rational G1 (the sample tables' bytes).
-        g = g1(ci) * g1(co) if self.masking == "separable" else _masking(lam(ci), lam(co), self.masking)
-        spec = fres * (d * g / (4.0 * ci * co))
-        return _rgb(self.kd).reshape((3,) + (1,) * ch.ndim) / np.pi + spec
+        return _microfacet("beckmann", self.roughness, self.f0, self.kd, self.masking, wi, wo)
 
 
 @dataclass(frozen=True)

@@ -172,7 +172,7 @@ def main():
         "renders": renders,
         "seconds": round(time.perf_counter() - t_start, 1),
     }
-    from addon.core.atomic import atomic_path  # guarded and atomic, like every other writer
+    from addon.core.file.atomic import atomic_path  # guarded and atomic, like every other writer
 
     with atomic_path(os.path.join(args.out, "demo.json"), ".json") as tmp, open(tmp, "w") as fh:
         json.dump(summary, fh, indent=1, allow_nan=False)

@@ -175,8 +175,8 @@ def exr_bytes(width, height, compression=3, body=b""):
 def build_operator_in_memory(theta_o):
     """The slice operator built whole in memory, without the cache: what the streamed cache
     (``integrate.get_operator``) must hold."""
-    from addon.core.integrate import SliceOperator, _build_chunks
-    from addon.core.quadrature import RuleParams
+    from addon.core.profiles.integrate import SliceOperator, _build_chunks
+    from addon.core.profiles.quadrature import RuleParams
 
     theta_o = np.asarray(theta_o, dtype=float)
     parts, offsets = _build_chunks(theta_o, RuleParams(), None)

@@ -1,4 +1,4 @@
-"""The check that Cycles renders a stretched lobe of ``core.lobes`` as the fit models it: one GGX
+"""The check that Cycles renders a stretched lobe of ``core.material.lobes`` as the fit models it: one GGX
 lobe (roughness 0.3, white) stretched across the plane of incidence (aspect 3 past the first
 texel), put into a material by the add-on's ``apply_lobes``, on a sphere under Blender's studio
 HDRI, against a converged numpy render of the model itself (``lobes_brdf``: a MERL table cannot
@@ -11,14 +11,32 @@ import numpy as np
 ROUGHNESS, ASPECT, SIZE, SAMPLES = 0.3, 3.0, 64, 1024
 
 
-def render_errors(bpy, material, exr_path):
-    """Per-pixel relative RMSE of the render against the three references."""
+def _kinds_case(L, shadowing):
+    """A Beckmann lobe (roughness 0.3, weight 0.3) and a GGX lobe times the Principled's Fresnel
+    factor (roughness 0.2, weight 1, the Mix Shader's most), no diffuse; against the same with
+    the Beckmann lobe drawn as GGX, and with the Fresnel lobe's factor left out (weight 0.1)."""
+    n = L.N_VIEWS
+    w = np.zeros((3, n, 3))
+    w[1], w[2] = 0.3, 1.0
+    rough = (0.3, 0.2)
+    plain = w.copy()
+    plain[2] = 0.1
+    return L.LobeFit(rough, w, shadowing, 0.0, 0.0, None, (L.BECKMANN, L.FRESNEL)), {
+        "GGX for Beckmann": L.LobeFit(rough, w, shadowing, 0.0, 0.0, None, (L.GGX, L.FRESNEL)),
+        "no Fresnel": L.LobeFit(rough, plain, shadowing, 0.0, 0.0, None, (L.BECKMANN, L.GGX)),
+    }
+
+
+def render_errors(bpy, material, exr_path, case="stretched"):
+    """Per-pixel relative RMSE of the render against the three references. ``case``:
+    "stretched" (the stretched lobe above) or "kinds" (``_kinds_case``: Beckmann and Fresnel
+    lobes), the model's error under "model"."""
     from addon.blender.preview import render_still
     from addon.blender.preview import scene as sc
-    from addon.core import lobes as L
-    from addon.core.merl import tabulate
-    from addon.core.profiles import compute_profiles
-    from addon.core.render import TableBRDF, bake_sphere, relative_rmse, sphere_layout
+    from addon.core.file.merl import tabulate
+    from addon.core.material import lobes as L
+    from addon.core.preview import TableBRDF, bake_sphere, relative_rmse, sphere_layout
+    from addon.core.profiles.compute import compute_profiles
     from addon.tools.bench_preview import _environment, _read_exr
 
     n = L.N_VIEWS
@@ -28,6 +46,12 @@ def render_errors(bpy, material, exr_path):
     q[0, 0] = 1.0  # round at normal view, as every fit
     shadowing = L.shadowing_for(bpy.app.version)
     fit = L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0, q)
+    others = {
+        "in the plane": L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0, 1.0 / q),
+        "round": L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0),
+    }
+    if case == "kinds":
+        fit, others = _kinds_case(L, shadowing)
 
     class Model(TableBRDF):
         """The model evaluated exactly; its own table only guides the sampling."""
@@ -49,11 +73,7 @@ def render_errors(bpy, material, exr_path):
     layout = sphere_layout(SIZE, SIZE, 1)
     mask = layout.interior_mask()
     refs = {}
-    for name, f in (
-        ("model", fit),
-        ("in the plane", L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0, 1.0 / q)),
-        ("round", L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0)),
-    ):
+    for name, f in (("model", fit), *others.items()):
         rgb, cov = bake_sphere(Model(f), env, layout.diameter, SAMPLES, 3)
         refs[name] = layout.compose([np.dstack([rgb * cov[..., None], cov])])
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -66,10 +86,11 @@ def render_errors(bpy, material, exr_path):
     mat = bpy.data.materials.new("stretched")
     material.apply_lobes(mat, fit)
     group = mat.node_tree.nodes["BRDF Moments edit"]
-    if "stretched GGX lobes" not in group.label or "ShaderNodeNewGeometry" not in [
-        nd.bl_idname for nd in group.node_tree.nodes
-    ]:
+    kinds = [nd.bl_idname for nd in group.node_tree.nodes]
+    if case == "stretched" and "ShaderNodeNewGeometry" not in kinds:
         raise AssertionError(f"not a stretched lobes group: {group.label}")
+    if case == "kinds" and (kinds.count("ShaderNodeBsdfPrincipled") != 1 or "ShaderNodeBsdfDiffuse" in kinds):
+        raise AssertionError(f"not one Principled and no Diffuse: {kinds}")
     obj.data.materials.clear()
     obj.data.materials.append(mat)
     render_still(scene, exr_path, quiet=True)

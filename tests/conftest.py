@@ -35,7 +35,7 @@ def pytest_collection_modifyitems(config, items):
 @pytest.fixture(scope="session")
 def sample_table():
     import samples
-    from addon.core.merl import read_merl
+    from addon.core.file.merl import read_merl
 
     cache = {}
 

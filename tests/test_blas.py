@@ -1,11 +1,11 @@
-"""``core.blas.one_thread``: OpenBLAS on one thread inside a block, restored after, also when
+"""``core.edit.blas.one_thread``: OpenBLAS on one thread inside a block, restored after, also when
 blocks nest or overlap from two threads (the live preview's thread and an Apply)."""
 
 import threading
 
 import numpy as np
 
-from addon.core import blas
+from addon.core.edit import blas
 
 
 def _threads():

@@ -73,7 +73,7 @@ def lane_run(tmp_path_factory):
 
 
 def test_legacy_addon_runs_the_whole_flow_in_blender_34(lane_run, sample_table):
-    from addon.core.profiles import compute_profiles
+    from addon.core.profiles.compute import compute_profiles
 
     res, out, tmp = lane_run
     log = res.stdout + res.stderr
@@ -133,36 +133,50 @@ def test_analyse_and_reset_run_in_blender_34(lane_run):
 
 
 def test_apply_edits_the_material_itself_in_blender_34(lane_run):
-    """No OSL in Debian's 3.4: Apply (Auto) put the Principled BSDF into the demo's material (on
-    the demo's analytic GGX edit it is closer than the lobes, albedo within 10 %), labelled as an
-    approximation; Restore took it out. The fitted lobes, chosen explicitly, build in 3.4 too:
-    Diffuse and single-scattering GGX Glossy nodes reading a packed lookup, fitted with 3.4's
-    separable Smith term. The plot survived a save and reopen."""
+    """No OSL in Debian's 3.4: Apply (Auto) put the closer approximation into the demo's material,
+    labelled as one; Restore took it out. The fitted lobes, chosen explicitly, build in 3.4 too:
+    Diffuse, single-scattering GGX and Beckmann Glossy and Principled (Fresnel lobe) nodes reading
+    a packed lookup, fitted with 3.4's separable Smith term. The plot survived a save and reopen."""
     res, out, _ = lane_run
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     ops = json.loads((out / "operators.json").read_text())
     art = ops["artist"]
-    assert art["used"] == "principled" and "Principled approx" in art["label"] and art["linked"]
-    assert "ShaderNodeBsdfPrincipled" in art["group"]
-    # the demo widens ggx_glossy's lobe 1.5x (GGX alpha 0.1, Blender roughness sqrt(0.1) = 0.316):
-    # the fit is rougher (measured 0.347; sqrt(1.5) x the width would be 0.35)
-    assert art["principled"]["roughness"] > 0.33 and 0.0 < art["principled"]["error"] < 1.0
-    assert art["principled"]["albedo_error"] <= 0.10
+    # Auto installs the closer of the two in BRDF error: since the lobes may be Fresnel-shaped
+    # (issue 37) that is the lobes on the demo's edit (measured 6.5 %), the Principled before
+    assert art["used"] in ("lobes", "principled") and art["linked"]
+    assert ("lobes (error" if art["used"] == "lobes" else "Principled (error") in art["label"]
+    if art["used"] == "principled":
+        # the demo widens ggx_glossy's lobe 1.5x (GGX alpha 0.1, Blender roughness sqrt(0.1) =
+        # 0.316): the fit is rougher (measured 0.347; sqrt(1.5) x the width would be 0.35)
+        assert "ShaderNodeBsdfPrincipled" in art["group"]
+        assert art["principled"]["roughness"] > 0.33 and 0.0 < art["principled"]["error"] < 1.0
+    else:
+        assert 0.0 < art["lobes"]["error"] < 0.10 and art["lobes"]["albedo_error"] < 0.05
     assert "BRDF Moments edit" not in art["after_restore"]
     lobes = art["lobes_run"]
     assert lobes["ran"] == ["FINISHED"] and lobes["used"] == "lobes" and lobes["linked"] and lobes["packed"]
-    assert "GGX lobes" in lobes["label"]
+    assert "lobes (error" in lobes["label"]
     fit = lobes["lobes"]
     assert fit["shadowing"] == "separable"
     # stretched lobes (an aspect per view other than 1) take 3.4's Anisotropic node and K more rows
     stretched = any(q != 1.0 for row in fit["aspect"] for q in row)
     kind = "ShaderNodeBsdfAnisotropic" if stretched else "ShaderNodeBsdfGlossy"
-    assert lobes["distributions"] == [[kind, "GGX"]] * len(fit["roughness"])
-    rows = 1 + len(fit["roughness"]) * (2 if stretched else 1)
+    # a Glossy of each lobe's distribution, a Principled (GGX) for a lobe times the Fresnel factor
+    kinds = fit.get("kinds", ["ggx"] * len(fit["roughness"]))
+    want = sorted(
+        ["ShaderNodeBsdfPrincipled", "GGX"] if k == "ggx_fresnel" else [kind, "BECKMANN" if k == "beckmann" else "GGX"]
+        for k in kinds
+    )
+    assert lobes["distributions"] == want
+    diffuse = any(v > 0.0 for row in fit["weights"][0] for v in row)
+    glossy = sum(k != "ggx_fresnel" for k in kinds)
+    rows = int(diffuse) + len(kinds) + (glossy if stretched else 0)
     assert lobes["group"].count("ShaderNodeTexImage") == rows
-    assert "ShaderNodeBsdfDiffuse" in lobes["group"] and "ShaderNodeLayerWeight" in lobes["group"]
-    # Auto kept the Principled because it is closer in BRDF error; the lobes meet the albedo
-    assert art["principled"]["error"] < fit["error"] < 1.0 and fit["albedo_error"] < 0.05
+    assert ("ShaderNodeBsdfDiffuse" in lobes["group"]) == diffuse and "ShaderNodeLayerWeight" in lobes["group"]
+    # the lobes meet the albedo; Auto kept the closer in BRDF error
+    assert fit["error"] < 1.0 and fit["albedo_error"] < 0.05
+    if art["used"] == "principled":
+        assert art["principled"]["error"] < fit["error"]
     assert lobes["restore"] == ["FINISHED"] and "BRDF Moments edit" not in lobes["after_restore"]
     assert ops["reopened"]["plot"] and ops["reopened"]["plot_drawn"] > 0.01
 

@@ -106,7 +106,7 @@ def test_edit_without_sliders_copies_values_and_never_overwrites(tmp_path):
     import numpy as np
 
     import samples
-    from addon.core.merl import read_merl
+    from addon.core.file.merl import read_merl
 
     src = samples.sample_path("gold")
     digest = hashlib.sha256(open(src, "rb").read()).hexdigest()
@@ -170,7 +170,7 @@ def test_every_help_prints_and_render_says_its_default():
         res = run(*cmd, "--help")
         assert res.returncode == 0 and "usage:" in res.stdout and not res.stderr, (cmd, res.stderr)
     text = " ".join(run("render", "--help").stdout.split())
-    from addon.core.render.live import FINAL_SAMPLES
+    from addon.core.preview.live import FINAL_SAMPLES
     from addon.tools.cli import RENDER_BAKE_SAMPLES, RENDER_DEFAULT_ERROR, build_parser
 
     # the default is the accurate baked path, at the panel's bake, and the help says its error
@@ -183,9 +183,9 @@ def test_edit_takes_relative_moves_and_reports_the_operator(tmp_path):
     """--sigma2 x0.5 halves the fitted variance (the written file re-fits to it within 1 %),
     the output names the roughness scale, floor and masking, and malformed moves exit 2."""
     import samples
-    from addon.core.fits import fit_material
-    from addon.core.merl import read_merl
-    from addon.core.profiles import compute_profiles
+    from addon.core.file.merl import read_merl
+    from addon.core.fits.curves import fit_material
+    from addon.core.profiles.compute import compute_profiles
 
     src = samples.sample_path("ggx_glossy")
     fitted = fit_material(compute_profiles(read_merl(src)))["sigma2"]

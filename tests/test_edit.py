@@ -5,13 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from addon.core import truncated
 from addon.core.edit import EditTargets, directional_albedo, edit, scale_to_albedo
-from addon.core.fits import fit_material
+from addon.core.file.merl import lookup
+from addon.core.fits import truncated
+from addon.core.fits.curves import fit_material
 from addon.core.geometry import view_centred
-from addon.core.merl import lookup
-from addon.core.profiles import compute_profiles
-from addon.core.render.lobe import truncnorm_pdf
+from addon.core.preview.lobe import truncnorm_pdf
+from addon.core.profiles.compute import compute_profiles
 
 
 @pytest.fixture(scope="module")
@@ -135,7 +135,7 @@ def test_truncated_moments_and_density_agree_with_scipy_far_into_the_tails(m, s)
 @pytest.mark.slow
 def test_reported_moments_are_the_written_tables(glossy, tmp_path):
     """What the edit reports (fit and per-view figures) is what re-reading the written file shows."""
-    from addon.core.merl import read_merl, write_merl
+    from addon.core.file.merl import read_merl, write_merl
 
     table, prof, fit = glossy
     res = edit(table, EditTargets(sigma2=fit["sigma2"] * 0.8), prof, fit)
@@ -209,12 +209,12 @@ def test_a_superseded_synthesis_stops_between_its_steps_and_keeps_nothing(glossy
 
 
 def test_the_live_work_drops_a_superseded_refinement(glossy):
-    """``render.live.work``: a move that comes once the full synthesis has started stops it at
+    """``preview.live.work``: a move that comes once the full synthesis has started stops it at
     its next step (nothing is kept, no refined image of the old sliders is posted), rather than
     after the whole synthesis."""
     from addon.core.edit import solve
-    from addon.core.render.envmap import Environment
-    from addon.core.render.live import work
+    from addon.core.preview.envmap import Environment
+    from addon.core.preview.live import work
 
     table, prof, fit = glossy
     targets = EditTargets(sigma2=fit["sigma2"] * 0.8)

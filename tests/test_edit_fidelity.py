@@ -15,10 +15,10 @@ import pytest
 
 from addon.core.edit import EditTargets, edit
 from addon.core.edit.fidelity import measure
-from addon.core.fits import fit_material
+from addon.core.file.merl import MerlTable, lookup
+from addon.core.fits.curves import fit_material
 from addon.core.geometry import view_centred
-from addon.core.merl import MerlTable, lookup
-from addon.core.profiles import compute_profiles
+from addon.core.profiles.compute import compute_profiles
 
 # Per view, worst of r, g, b over the counted views (5-80 deg, >= 5 % of the peak energy).
 ENERGY = 0.03
@@ -56,8 +56,8 @@ def test_every_view_follows_a_variance_edit(narrowed):
 def test_fidelity_is_measured_on_the_written_table(glossy, narrowed, tmp_path):
     """The announcement is a measurement of the table the edit writes: the file written, read
     back and analysed afresh shows it, view by view (the stick is not the solver)."""
-    from addon.core.merl import read_merl, write_merl
-    from addon.core.profiles import compute_profiles
+    from addon.core.file.merl import read_merl, write_merl
+    from addon.core.profiles.compute import compute_profiles
 
     table, prof, fit = glossy
     path = tmp_path / "narrowed.binary"
@@ -228,7 +228,7 @@ def test_an_energy_edit_of_a_broad_lobe_promises_its_own_variance(sample_table):
     """nielsen/greencloth fits sigma2 above the slider's pi^2/12. An energy-only edit leaves
     the variance alone: the promised per-view variance is the measured one (the bench found a
     22 % variance error here when the untouched variance was clamped to the slider's range)."""
-    from addon.core.fits import LAMBERT_VARIANCE
+    from addon.core.fits.curves import LAMBERT_VARIANCE
 
     table = sample_table("nielsen/greencloth")
     prof = compute_profiles(table)

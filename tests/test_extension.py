@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from addon.core.fits import fit_material
-from addon.core.merl import read_merl
-from addon.core.profiles import compute_profiles
+from addon.core.file.merl import read_merl
+from addon.core.fits.curves import fit_material
+from addon.core.profiles.compute import compute_profiles
 
 pytestmark = pytest.mark.blender  # the extension in the bpy module
 
@@ -28,9 +28,9 @@ def test_manifest_passes_blenders_validator(blender):
 
 def test_load_analyses_stores_and_survives_save_without_the_source(fresh, tmp_path):
     import samples
-    from addon.core.fits import fit_material
-    from addon.core.merl import read_merl
-    from addon.core.profiles import compute_profiles
+    from addon.core.file.merl import read_merl
+    from addon.core.fits.curves import fit_material
+    from addon.core.profiles.compute import compute_profiles
 
     bpy = fresh
     src = tmp_path / "gold.binary"

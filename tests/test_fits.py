@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from addon.core.fits import (
+from addon.core.fits.curves import (
     KNOT_START,
     LAMBERT_VARIANCE,
     correlation_curve,
@@ -18,7 +18,7 @@ from addon.core.fits import (
     fit_set,
     fit_variance,
 )
-from addon.core.profiles import Profiles
+from addon.core.profiles.compute import Profiles
 
 T = np.radians(np.arange(90.0))
 IN = T <= math.radians(85.0) + 1e-12

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import samples
-from addon.core import nbrdf
-from addon.core.integrate import get_operator
-from addon.core.merl import MerlTable, tabulate
-from addon.core.profiles import DIFFUSE_VIEW, ROBUST_MAX_ANGLE, compute_profiles, diffuse_floor
+from addon.core.file import nbrdf
+from addon.core.file.merl import MerlTable, tabulate
+from addon.core.profiles.compute import DIFFUSE_VIEW, ROBUST_MAX_ANGLE, compute_profiles, diffuse_floor
+from addon.core.profiles.integrate import get_operator
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RGL = os.path.join(samples.MEASURED_DIR, "nbrdf-rgl-isotropic.npz")

@@ -24,7 +24,7 @@ def test_engine_never_imports_bpy():
                 if any(m.split(".")[0] in ("bpy", "bmesh", "mathutils", "gpu", "bl_ui") for m in mods):
                     offenders.append(f"{path}:{node.lineno}")
     assert offenders == []
-    assert len([f for f in os.listdir(core) if f.endswith(".py")]) >= 6  # the scan saw the engine
+    assert len(list(_python_files(os.path.join("addon", "core")))) >= 40  # the scan saw the engine
 
 
 def _python_files(*tops):
@@ -66,10 +66,10 @@ def test_only_the_entry_point_imports_the_cli():
 
 
 def test_the_shaders_clamp_the_variance_like_the_engine():
-    """OSL cannot import Python: its variance clamp repeats core.fits' constants, checked here."""
+    """OSL cannot import Python: its variance clamp repeats core.fits.curves' constants, checked here."""
     import re
 
-    from addon.core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
+    from addon.core.fits.curves import LAMBERT_VARIANCE, MIN_SIGMA2
 
     for name in ("brdf_moments_model.osl", "brdf_moments_table.osl"):
         text = open(os.path.join(ROOT, "addon", "shaders", name), encoding="utf-8").read()
@@ -225,11 +225,115 @@ def test_the_circle_finder_finds_circles():
     assert _circles(diamond) == []
 
 
+# --- the engine's rooms ----------------------------------------------------------------------
+# addon/core/ holds one package per step of the README's flow (file -> profiles -> fits -> edit
+# -> table -> preview; the table step's node approximations are ``material``), in that order,
+# and beside them the modules every step may read, which import no step. Each package names the
+# packages it may import: only ones before it in the flow.
+ENGINE_GROUND = ("limits", "geometry", "microsurface")
+ENGINE = {
+    "file": (),  # the MERL table, networks, the guard and opener, atomic writes, sealed caches
+    "profiles": ("file",),  # integrates a table's slices
+    "fits": ("file",),  # reads a set's fits.json through the opener
+    "edit": ("file", "profiles", "fits"),  # re-measures and re-fits what it writes
+    "material": ("file",),  # reads the table it approximates
+    "preview": ("file", "profiles", "fits", "edit"),  # the live preview runs the edit
+}
+
+
+def _engine_package(module):
+    """The engine package ``module`` belongs to, "" for a ground module, None outside the engine."""
+    parts = module.split(".")
+    if parts[:2] != ["addon", "core"]:
+        return None
+    if len(parts) == 2 or parts[2] in ENGINE_GROUND:
+        return ""
+    return parts[2]
+
+
+def _engine_violations(graph):
+    """Imports between the engine's rooms that ENGINE does not allow."""
+    bad = []
+    for name, edges in sorted(graph.items()):
+        own = _engine_package(name)
+        if own is None:
+            continue
+        for target, line in sorted(edges):
+            other = _engine_package(target)
+            if other is None or other == own or other == "":
+                continue
+            if own == "" or other not in ENGINE.get(own, ()):
+                bad.append(f"{name}:{line} imports {target} ({own or 'ground'} -> {other})")
+    return bad
+
+
+def test_the_engine_is_one_package_per_step():
+    """addon/core/ holds the steps' packages and the ground modules, nothing else; the ground
+    modules are the only ones at its top."""
+    core = os.path.join(ROOT, "addon", "core")
+    entries = {e for e in os.listdir(core) if e != "__pycache__"}
+    want = {"__init__.py"} | {f"{m}.py" for m in ENGINE_GROUND} | set(ENGINE)
+    assert entries == want
+    for package in ENGINE:
+        assert os.path.isfile(os.path.join(core, package, "__init__.py")), package
+
+
+def _docstring(path):
+    return ast.get_docstring(ast.parse(open(path, encoding="utf-8").read(), path)) or ""
+
+
+def test_each_engine_package_says_what_it_holds_and_in_what_order():
+    """The engine's docstring names its packages in the order of the flow (ENGINE's); each
+    package's docstring names every module it holds (the order its modules run)."""
+    core = os.path.join(ROOT, "addon", "core")
+    top = _docstring(os.path.join(core, "__init__.py"))
+    found = [top.find(f"``{p}``") for p in ENGINE]
+    assert -1 not in found and found == sorted(found), found
+    assert all(f"``{m}``" in top for m in ENGINE_GROUND)
+    for package in ENGINE:
+        folder = os.path.join(core, package)
+        text = _docstring(os.path.join(folder, "__init__.py"))
+        modules = [f[:-3] for f in os.listdir(folder) if f.endswith(".py") and f != "__init__.py"]
+        assert modules and [m for m in modules if f"``{m}``" not in text] == [], package
+
+
+def test_the_engine_packages_import_only_what_their_row_allows():
+    """Every import inside the engine (lazy ones too) stays in its package, reads the ground, or
+    goes to a package its ENGINE row names; the ground imports no package; and every row names
+    only packages before it in the flow, so the engine's rooms have no circle and no upward arrow."""
+    order = list(ENGINE)
+    for package, allowed in ENGINE.items():
+        assert all(order.index(a) < order.index(package) for a in allowed), package
+    graph = _import_graph()
+    assert _engine_violations(graph) == []
+    assert len([m for m in graph if _engine_package(m)]) >= 35  # the scan saw the packages
+
+
+def test_the_engine_rule_sees_a_step_reaching_forward():
+    """The rule itself, on made-up imports: a file module reading the profiles (the shape the old
+    cachefs -> integrate import had) and a ground module importing a step are refused; a step
+    reading the ground or an allowed earlier step is not."""
+    graph = {
+        "addon.core.file.cachefs": {("addon.core.profiles.integrate", 26), ("addon.core.limits", 19)},
+        "addon.core.limits": {("addon.core.file.safeio", 3)},
+        "addon.core.edit.solve": {("addon.core.profiles.compute", 19), ("addon.core.geometry", 4)},
+        "addon.core.material.lobes": {("addon.core.edit.microfacet", 7)},
+    }
+    assert _engine_violations(graph) == [
+        "addon.core.file.cachefs:26 imports addon.core.profiles.integrate (file -> profiles)",
+        "addon.core.limits:3 imports addon.core.file.safeio (ground -> file)",
+        "addon.core.material.lobes:7 imports addon.core.edit.microfacet (material -> edit)",
+    ]
+
+
 # The floors of the house, lowest first. A module may import its own room (the longest name
 # listed that it falls under) or a room on a lower floor; never one beside it or above it.
 FLOORS = (
-    # The engine, numpy and scipy only; the package root and its stdlib helpers.
+    # The engine's ground (``ENGINE_GROUND``, under "addon.core"); the package root and its
+    # stdlib helpers.
     ("addon.core", "addon", "addon.script_args", "addon.wheel"),
+    # The engine's steps, one floor each, in the order of the flow.
+    *((f"addon.core.{package}",) for package in ENGINE),
     # The figure writer both sides export with, and the sample catalogue the tools and tests read.
     ("addon.tools.plots", "samples"),
     # The glue: per-material state, panels, jobs, the preview scene.

@@ -1,12 +1,12 @@
-"""The bake's light clusters (addon.core.render.lights): a partition of the bright texels, a
+"""The bake's light clusters (addon.core.preview.lights): a partition of the bright texels, a
 sampler whose stated density is the one it draws from, and a choice that lowers the noise."""
 
 import numpy as np
 import pytest
 
-from addon.core.render import Environment, TableBRDF, bake_sphere, lights, reference_sphere
-from addon.core.render.envmap import _direction
-from addon.core.render.scene import interior_texels
+from addon.core.preview import Environment, TableBRDF, bake_sphere, lights, reference_sphere
+from addon.core.preview.envmap import _direction
+from addon.core.preview.scene import interior_texels
 
 SPOTS = np.array([[0.6, -0.6, 0.53], [-0.5, -0.7, 0.5], [0.1, -0.9, -0.4], [0.0, 0.3, 0.95], [0.9, 0.2, -0.3]])
 

@@ -12,7 +12,7 @@ import pytest
 
 from addon.blender.plot_image import SET_COLOUR, region_plot
 from addon.core.edit.reach import ReachableRegion
-from addon.core.fits import LAMBERT_VARIANCE
+from addon.core.fits.curves import LAMBERT_VARIANCE
 
 BACKGROUND = np.array([0.16, 0.16, 0.16])
 SAMPLES = ("ggx_glossy", "ggx_rough", "phong")

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import samples
-from addon.core import nbrdf
-from addon.core.merl import read_merl
+from addon.core.file import nbrdf
+from addon.core.file.merl import read_merl
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RGL = os.path.join(samples.MEASURED_DIR, "nbrdf-rgl-isotropic.npz")
@@ -29,7 +29,7 @@ def run(*args):
 
 
 def test_profiles_of_a_network_equal_those_of_its_decoded_table(tmp_path):
-    from addon.core.profiles import compute_profiles
+    from addon.core.profiles.compute import compute_profiles
 
     out = tmp_path / "p.json"
     res = run("profiles", f"{RGL}:paper_blue", "--out", str(out))

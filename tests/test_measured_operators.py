@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import samples
-from addon.core import nbrdf
-from addon.core.fits import fit_material
-from addon.core.profiles import compute_profiles
+from addon.core.file import nbrdf
+from addon.core.fits.curves import fit_material
+from addon.core.profiles.compute import compute_profiles
 
 pytestmark = pytest.mark.blender  # the operators in the bpy module
 
@@ -77,7 +77,7 @@ def test_bad_weights_are_an_error_report(material, tmp_path):
 
 
 def test_the_panel_floor_reaches_the_analysis_and_a_change_asks_for_a_new_one(material):
-    from addon.core.profiles import diffuse_floor
+    from addon.core.profiles.compute import diffuse_floor
 
     bpy, mat = material
     state = mat.brdf_moments

@@ -7,8 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from addon.core.geometry import directions_from_half_diff, view_centred
-from addon.core.merl import (
+from addon.core.file.merl import (
     CHANNEL_SCALES,
     FILE_BYTES,
     N_CELLS,
@@ -21,6 +20,7 @@ from addon.core.merl import (
     tabulate,
     write_merl,
 )
+from addon.core.geometry import directions_from_half_diff, view_centred
 
 
 def _write_raw(path, dims=(90, 90, 180), values=None, extra=b""):
@@ -129,7 +129,7 @@ def test_write_is_atomic_and_never_overwrites_input(tmp_path):
 
 def test_interrupted_write_leaves_nothing(tmp_path, monkeypatch):
     table = _random_table(2)
-    import addon.core.merl as merl
+    import addon.core.file.merl as merl
 
     def boom(*a, **k):
         raise KeyboardInterrupt
@@ -170,7 +170,7 @@ def test_lookup_of_tabulated_function_at_cell_centres_is_exact():
         return np.stack([1 + c, 2 + c * c, 3 - c])
 
     table = tabulate(brdf)
-    from addon.core.merl import cell_centres
+    from addon.core.file.merl import cell_centres
 
     th, td, pd = cell_centres()
     pick = np.random.default_rng(4).integers(0, N_CELLS, 500)
@@ -204,7 +204,7 @@ def test_trilinear_ignores_missing_neighbours_and_wraps_phi_d():
     rho[:, k] = 1e9
     valid[:, k] = False
     table = MerlTable(np.where(valid, rho, 0.0), valid)
-    from addon.core.merl import cell_centres
+    from addon.core.file.merl import cell_centres
 
     th, td, pd = cell_centres()
     pts = [k, k + 1]
@@ -221,8 +221,8 @@ def test_trilinear_ignores_missing_neighbours_and_wraps_phi_d():
 
 
 def test_direct_view_cell_formula_matches_the_general_conversion():
+    from addon.core.file.merl import cell_indices_view
     from addon.core.geometry import half_diff_from_directions
-    from addon.core.merl import cell_indices_view
 
     rng = np.random.default_rng(9)
     t = rng.uniform(-1.57, 1.57, 20000)
@@ -240,7 +240,7 @@ def test_direct_view_cell_formula_matches_the_general_conversion():
 
 
 def test_direct_view_cell_formula_takes_scalars_and_broadcasts():
-    from addon.core.merl import cell_indices_view
+    from addon.core.file.merl import cell_indices_view
 
     t = np.linspace(-1.5, 1.5, 7)[:, None]
     p = np.linspace(-1.5, 1.5, 5)[None, :]

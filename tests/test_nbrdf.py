@@ -1,4 +1,4 @@
-"""Neural-BRDF networks decoded to MERL tables (addon/core/nbrdf.py) and the measured samples."""
+"""Neural-BRDF networks decoded to MERL tables (addon/core/file/nbrdf.py) and the measured samples."""
 
 import os
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import samples
-from addon.core import nbrdf
+from addon.core.file import nbrdf
+from addon.core.file.merl import MerlError, cell_indices, read_merl, tabulate
 from addon.core.geometry import directions_from_half_diff, half_diff_from_directions
-from addon.core.merl import MerlError, cell_indices, read_merl, tabulate
 
 RGL = os.path.join(samples.MEASURED_DIR, "nbrdf-rgl-isotropic.npz")
 NIELSEN = os.path.join(samples.MEASURED_DIR, "nbrdf-nielsen.npz")
@@ -202,7 +202,7 @@ def test_bad_sources_raise_one_line_errors_naming_the_file(tmp_path):
 
 
 def test_parse_source(tmp_path):
-    from addon.core import sources
+    from addon.core.file import sources
 
     assert sources.parse_source(f"{RGL}:satin_gold") == (RGL, "satin_gold")
     assert sources.parse_source(RGL) == (RGL, None)

@@ -1,13 +1,13 @@
-"""How close any node setup could come to a table (``core.node_bound``): its own closure shapes
-against textbook forms (the microfacet lobes it shares with ``core.lobes`` are checked in
+"""How close any node setup could come to a table (``core.material.node_bound``): its own closure shapes
+against textbook forms (the microfacet lobes it shares with ``core.material.lobes`` are checked in
 test_lobes), and the bound itself on tables whose content is known."""
 
 import numpy as np
 import pytest
 
-from addon.core import lobes as L
-from addon.core import node_bound as B
-from addon.core.merl import tabulate
+from addon.core.file.merl import tabulate
+from addon.core.material import lobes as L
+from addon.core.material import node_bound as B
 
 
 @pytest.mark.parametrize("sigma", [0.2, 0.5, 1.0])
@@ -23,7 +23,7 @@ def test_a_table_made_of_the_shapes_is_reached_and_a_lobe_fit_states_more():
     the view. Their sum is one of the setups the bound ranges over, so the bound is at most that
     sum's own error against the table (what tabulating it into cells costs); the GGX lobes the
     nodes render stay well above it."""
-    from addon.core.principled import pixel_share
+    from addon.core.material.principled import pixel_share
 
     kd = np.array([0.3, 0.2, 0.1])
 
@@ -54,7 +54,7 @@ def test_no_lobe_fit_states_less_than_the_bound(name):
     lookup interpolates between texels is followed by the neighbouring ones), so the error a fit
     states is not below the bound on the same table."""
     import samples
-    from addon.core.merl import read_merl
+    from addon.core.file.merl import read_merl
 
     table = read_merl(samples.sample_path(name))
     bound = B.node_bound(table)

@@ -9,9 +9,9 @@ import shutil
 import numpy as np
 import pytest
 
-from addon.core.fits import fit_material
-from addon.core.merl import read_merl
-from addon.core.profiles import compute_profiles
+from addon.core.file.merl import read_merl
+from addon.core.fits.curves import fit_material
+from addon.core.profiles.compute import compute_profiles
 
 pytestmark = pytest.mark.blender  # the operators in the bpy module
 
@@ -261,7 +261,7 @@ def test_build_preview_baked_renders_original_and_edited(analysed, tmp_path):
     px = np.empty(48 * 24 * 4, np.float32)
     shown.pixels.foreach_get(px)
     px = px.reshape(24, 48, 4)[::-1]
-    from addon.core.render import sphere_layout
+    from addon.core.preview import sphere_layout
 
     layout = sphere_layout(48, 24, 2)
     mask = layout.interior_mask()

@@ -35,7 +35,7 @@ def scene(bpy):
 @pytest.fixture(scope="module")
 def sky(bpy, tmp_path_factory):
     from addon.blender.preview import write_environment
-    from addon.core.render import Environment
+    from addon.core.preview import Environment
 
     env = Environment.from_function(lambda d: np.repeat(A + B * d[:, 2:3], 3, axis=1), 256, 128)
     return write_environment(env.pixels, str(tmp_path_factory.mktemp("env") / "sky.exr"))
@@ -45,7 +45,7 @@ def sky(bpy, tmp_path_factory):
 def sun(bpy, tmp_path_factory):
     """A dim sky and a small bright sun up and to the camera's left, so a highlight shows."""
     from addon.blender.preview import write_environment
-    from addon.core.render import Environment
+    from addon.core.preview import Environment
 
     s = np.array([-0.3, -0.8, 0.5]) / np.linalg.norm([-0.3, -0.8, 0.5])
     env = Environment.from_function(
@@ -64,7 +64,7 @@ def read_exr(bpy, path):
 
 
 def closed_form(layout):
-    from addon.core.render.scene import texel_positions
+    from addon.core.preview.scene import texel_positions
 
     mask = layout.interior_mask()
     jj, ii = np.nonzero(mask)
@@ -75,8 +75,8 @@ def closed_form(layout):
 
 def lambert_as_lobe(sample_table):
     """The Lambertian with no kd split: all of it through the shaders' sampling."""
-    from addon.core.profiles import compute_profiles
-    from addon.core.render import MomentParams, TableBRDF
+    from addon.core.preview import MomentParams, TableBRDF
+    from addon.core.profiles.compute import compute_profiles
 
     table = sample_table("lambertian")
     a = 0.8 * math.pi  # alpha = rho pi^2 with rho = 0.8/pi: the lobe is the uniform square
@@ -147,7 +147,7 @@ def test_osl_glossy_agrees_with_the_numpy_reference(mode, scene, sample_table, t
     """Same view, map and BRDF in two renderers: the frames, the mapping and the measure agree."""
     from addon.blender.preview import build_preview, load_environment, render_still, resolve_environment
     from addon.blender.preview.build import brdf_of, model_params
-    from addon.core.render import ModelBRDF, render_reference
+    from addon.core.preview import ModelBRDF, render_reference
 
     table = sample_table("ggx_glossy")
     env_path = resolve_environment("courtyard")
@@ -180,7 +180,7 @@ def test_larger_variance_gives_a_lower_blurrier_highlight(path, scene, sun, tmp_
     """The slider moved sigma2 from 0.004 to 0.016 (4x): the highlight of the sun must get
     lower and wider (its area roughly follows the variance) while the energy stays."""
     from addon.blender.preview import build_preview, render_still
-    from addon.core.render import MomentParams
+    from addon.core.preview import MomentParams
 
     original = MomentParams((0.8,) * 3, (0.8,) * 3, (0.0,) * 3, 0.8, 1.3, -1.0, 0.004, (0.02,) * 3)
     edited = original.edited(sigma2=0.016)
@@ -206,7 +206,7 @@ def test_larger_variance_gives_a_lower_blurrier_highlight(path, scene, sun, tmp_
 
 def test_touching_one_of_ten_materials_rebakes_one(scene, sun, bpy):
     from addon.blender.preview import build_row, refresh_baked, set_source, source_of
-    from addon.core.render import BakeCache, MomentParams
+    from addon.core.preview import BakeCache, MomentParams
 
     base = MomentParams((0.5,) * 3, (0.6,) * 3, (0.2,) * 3, 0.8, 1.3, -1.0, 0.02, (0.03,) * 3)
     params = [base.edited(strength=0.5 + 0.1 * k) for k in range(10)]
@@ -275,7 +275,7 @@ def test_render_command(sky, tmp_path, sample_table):
 
     pix = OpenEXR.File(str(out)).channels()["RGBA"].pixels
     assert pix.shape == (48, 48, 4) and pix.dtype == np.float32
-    from addon.core.render import sphere_layout
+    from addon.core.preview import sphere_layout
 
     mask, want = closed_form(sphere_layout(48, 48, 2))
     np.testing.assert_allclose(pix[mask][:, 0], want, rtol=2e-3)

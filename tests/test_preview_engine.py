@@ -1,11 +1,12 @@
-"""The preview's numpy engine (addon.core.render) against closed forms and brute force."""
+"""The preview's numpy engine (addon.core.preview) against closed forms and brute force."""
 
 import math
 
 import numpy as np
 import pytest
 
-from addon.core.render import (
+from addon.core.fits.truncated import CAP_FRACTION, variance_cap
+from addon.core.preview import (
     BakeCache,
     Environment,
     ModelBRDF,
@@ -22,9 +23,8 @@ from addon.core.render import (
     truncnorm_pdf,
     truncnorm_sample,
 )
-from addon.core.render.envmap import direction_to_uv
-from addon.core.render.scene import interior_texels, texel_positions
-from addon.core.truncated import CAP_FRACTION, variance_cap
+from addon.core.preview.envmap import direction_to_uv
+from addon.core.preview.scene import interior_texels, texel_positions
 
 A, B = 1.0, 0.5  # the sky L(d) = A + B d_z: irradiance E(n) = pi A + (2 pi / 3) B n_z
 
@@ -48,7 +48,7 @@ def lambert(sample_table):
 @pytest.fixture(scope="module")
 def lambert_whole(sample_table):
     """The Lambertian with no kd split: every bit of it goes through the samplers."""
-    from addon.core.profiles import compute_profiles
+    from addon.core.profiles.compute import compute_profiles
 
     table = sample_table("lambertian")
     return TableBRDF(table, compute_profiles(table, split=False))
@@ -93,7 +93,7 @@ def test_irradiance_matches_the_closed_form_and_a_brute_force_sum():
     sun = np.array([0.3, -0.5, 0.81]) / np.linalg.norm([0.3, -0.5, 0.81])
     env = Environment.from_function(lambda d: np.repeat(0.2 + 400.0 * (d @ sun > 0.999)[:, None], 3, axis=1), 512, 256)
     zc = 0.5 * (env.z_edges[:-1] + env.z_edges[1:])
-    from addon.core.render.envmap import _direction
+    from addon.core.preview.envmap import _direction
 
     uu, zz = np.meshgrid((np.arange(env.width) + 0.5) / env.width, zc)
     dirs = _direction(uu.ravel(), zz.ravel())
@@ -132,7 +132,7 @@ def test_truncated_params_round_trip_and_uniform_limit():
     assert inside.mean() > 0.9
     np.testing.assert_allclose(vt[inside], var[inside], rtol=1e-6)
     np.testing.assert_allclose(vt[~inside], cap[~inside], rtol=1e-6)
-    # pi^2/12 is the uniform, which no truncated Gaussian reaches: the one rule (core.truncated)
+    # pi^2/12 is the uniform, which no truncated Gaussian reaches: the one rule (core.fits.truncated)
     # caps it at 99.5 % of it, a lobe within 2 % of uniform
     m, s = truncated_params(np.zeros(1), np.array([math.pi**2 / 12]))
     _, vt = truncnorm_moments(m, s)
@@ -202,7 +202,7 @@ def test_moment_model_uses_the_solid_angle_measure():
     """A lobe that is the uniform on the (theta, phi) square with alpha = 0.8 pi is the
     Lambertian 0.8/pi: the estimator alpha mean(L cos t cos^2 p) must give 0.8 L exactly
     (with cos t cos p, i.e. the moment measure mistaken for solid angle, it gives 1.02 L).
-    The variance pi^2/12 is capped by the one truncated-Gaussian rule (core.truncated) at 99.5 %
+    The variance pi^2/12 is capped by the one truncated-Gaussian rule (core.fits.truncated) at 99.5 %
     of the uniform's, a lobe within 2 % of it that brightens the centre of the sphere by 0.65 %
     (measured); the measure mistake stays three times larger than the tolerance."""
     a = 0.8 * math.pi

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from addon.core.principled import PrincipledFit, fit_principled, principled_brdf
+from addon.core.material.principled import PrincipledFit, fit_principled, principled_brdf
 
 
 @pytest.mark.parametrize("name", ["ggx_glossy", "ggx_rough", "red_plastic"])

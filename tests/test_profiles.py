@@ -8,10 +8,8 @@ from scipy import integrate as sp_integrate
 from scipy.special import ndtr
 from scipy.stats import truncnorm
 
-from addon.core.integrate import get_operator, monte_carlo_sums, reference_sums, table_slice_evaluator, table_sums
-from addon.core.merl import N_CELLS, MerlTable
-from addon.core.moments import profiles_from_sums
-from addon.core.profiles import (
+from addon.core.file.merl import N_CELLS, MerlTable
+from addon.core.profiles.compute import (
     Profiles,
     compute_profiles,
     diffuse_floor,
@@ -19,6 +17,14 @@ from addon.core.profiles import (
     monte_carlo_profiles,
     specular_values,
 )
+from addon.core.profiles.integrate import (
+    get_operator,
+    monte_carlo_sums,
+    reference_sums,
+    table_slice_evaluator,
+    table_sums,
+)
+from addon.core.profiles.moments import profiles_from_sums
 
 H = math.pi / 2
 
@@ -314,7 +320,7 @@ def test_trilinear_operator_matches_the_point_by_point_reading(sample_table, nam
     cells' values); any other mask is read point by point (lookup_angles, renormalised over
     the measured neighbours). Where the masks agree, so do the two: a cell masked out far
     from every lobe forces the second path (its own effect is below 1e-7 here)."""
-    from addon.core.merl import MerlTable, horizon_mask
+    from addon.core.file.merl import MerlTable, horizon_mask
 
     table = sample_table(name)
     to = np.radians([10.0, 60.0, 85.0])

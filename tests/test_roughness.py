@@ -13,8 +13,8 @@ from addon.core.edit import microfacet as M
 from addon.core.edit.floor import joint_floor
 from addon.core.edit.roughness import CUBE, prepare, scale_roughness
 from addon.core.edit.scale import measure, solve_scale
-from addon.core.merl import RES_TH, tabulate
-from addon.core.profiles import compute_profiles
+from addon.core.file.merl import RES_TH, tabulate
+from addon.core.profiles.compute import compute_profiles
 from samples.analytic import GGX, Beckmann
 
 
@@ -138,7 +138,7 @@ def test_identity_scale_returns_the_table_exactly(plastic):
 def test_edited_table_is_reciprocal_finite_nonnegative_and_keeps_missing_cells(plastic):
     """Reciprocity: the table is built per (theta_h, theta_d, phi_d) cell, which both
     directions share; check it on swapped directions read from the written table."""
-    from addon.core.merl import lookup
+    from addon.core.file.merl import lookup
 
     table, prof = plastic
     valid = table.valid.copy()
@@ -204,7 +204,7 @@ def test_scaled_ndf_is_normalised_and_is_the_wider_ggx():
 def _albedo_by_quadrature(table, theta_o, n=320):
     """int rho cos(theta_i) dw_i at one view, by the midpoint rule on a (theta_i, phi_i) grid
     through ``merl.lookup``: independent of the slice operator the edit bounds it with."""
-    from addon.core.merl import lookup
+    from addon.core.file.merl import lookup
 
     ti = (np.arange(n) + 0.5) / n * (math.pi / 2)
     pi_ = (np.arange(2 * n) + 0.5) / (2 * n) * (2 * math.pi)
@@ -222,7 +222,7 @@ def test_narrowing_a_fabric_returns_no_more_light_than_it_receives(sample_table)
     by its broad masking; narrowing relieves the masking. Unbounded, s = 0.45 returned 7.2
     times the light received at 87 deg. The edit must stay passive (albedo <= max(1, the
     source's)), measured by quadrature independent of the operator, and stay reciprocal."""
-    from addon.core.merl import lookup
+    from addon.core.file.merl import lookup
 
     table = sample_table("rgl/satin_blue")
     prof, _ = measure(table, None)

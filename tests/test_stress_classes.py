@@ -1,6 +1,6 @@
 """Issue 29's hostile-input classes, each closed by a mechanism and checked as a class:
 
-1. every file the product reads goes through the input opener (``core/safeio.open_input``), so
+1. every file the product reads goes through the input opener (``core/file/safeio.open_input``), so
    nothing found by a folder walk can hang it (a FIFO, a link to one);
 2. every numeric input has a declared finite range (``core/limits.RANGES``): the command line's
    flags, the extension's properties and the engine's entry points refuse anything outside it
@@ -31,21 +31,21 @@ SEALS = "nothing lost: 12 every cache sealed"
 # call's text; anything else the scan finds fails the test (a new read must use the opener).
 READ_ALLOWED = {
     # the opener itself, and readers of bytes it already read
-    ("addon/core/safeio.py", "zipfile.ZipFile(io.BytesIO(data))"),
-    ("addon/core/safeio.py", "np.load(io.BytesIO(data), allow_pickle=False)"),
-    ("addon/core/nbrdf.py", "np.load(io.BytesIO(data), allow_pickle=False)"),
-    ("addon/core/render/cache.py", "np.load(io.BytesIO(data))"),
+    ("addon/core/file/safeio.py", "zipfile.ZipFile(io.BytesIO(data))"),
+    ("addon/core/file/safeio.py", "np.load(io.BytesIO(data), allow_pickle=False)"),
+    ("addon/core/file/nbrdf.py", "np.load(io.BytesIO(data), allow_pickle=False)"),
+    ("addon/core/preview/cache.py", "np.load(io.BytesIO(data))"),
     # h5py opens by name: open_input checked it is a regular file within the bound just before
-    ("addon/core/nbrdf.py", "h5py.File(path, 'r')"),
+    ("addon/core/file/nbrdf.py", "h5py.File(path, 'r')"),
     # the operator's parts, memory-mapped by name after open_input read every byte for the CRC
-    ("addon/core/integrate.py", "np.load(os.path.join(folder, 'theta_o.npy'))"),
-    ("addon/core/integrate.py", "np.load(os.path.join(folder, 'offsets.npy'))"),
-    ("addon/core/integrate.py", "np.load(os.path.join(folder, f'{k}.npy'), mmap_mode='r')"),
+    ("addon/core/profiles/integrate.py", "np.load(os.path.join(folder, 'theta_o.npy'))"),
+    ("addon/core/profiles/integrate.py", "np.load(os.path.join(folder, 'offsets.npy'))"),
+    ("addon/core/profiles/integrate.py", "np.load(os.path.join(folder, f'{k}.npy'), mmap_mode='r')"),
     # a raw part the build itself just wrote into its own fresh temporary folder
-    ("addon/core/integrate.py", "open(src, 'rb')"),
+    ("addon/core/profiles/integrate.py", "open(src, 'rb')"),
     # the kernel's files
-    ("addon/core/blas.py", "open('/proc/self/maps')"),
-    ("addon/core/atomic.py", "open(f'/proc/{pid}/stat', 'rb')"),
+    ("addon/core/edit/blas.py", "open('/proc/self/maps')"),
+    ("addon/core/file/atomic.py", "open(f'/proc/{pid}/stat', 'rb')"),
 }
 # Benchmarks read their own outputs and caches; they are not shipped and take no user input.
 SCAN_SKIP = ("addon/tools/bench",)
@@ -77,7 +77,7 @@ def test_every_read_of_the_product_goes_through_the_opener(stress_log):
                 if f.endswith(".py") and not rel.startswith(SCAN_SKIP):
                     found.update((rel, call) for call in _reads(os.path.join(ROOT, rel)))
     unexpected = sorted(found - READ_ALLOWED)
-    assert not unexpected, f"reads that bypass core/safeio.open_input: {unexpected}"
+    assert not unexpected, f"reads that bypass core/file/safeio.open_input: {unexpected}"
     assert not READ_ALLOWED - found, f"allow-list entries no longer in the code: {sorted(READ_ALLOWED - found)}"
     stress_log.record(OPENER, "valid", f"source scan: {len(found)} allowed direct reads, none other")
 
@@ -130,7 +130,7 @@ def _in_child(code, timeout=120, **env):
 def test_fifos_in_the_caches_walks_never_hang(tmp_path, stress_log):
     """The journal of temporaries and an operator folder are walked by every run: a FIFO
     planted in either is skipped, never opened (each run in a child with a timeout)."""
-    from addon.core.atomic import MARKER
+    from addon.core.file.atomic import MARKER
 
     cache = tmp_path / "cache"
     pending = cache / "pending"
@@ -138,13 +138,15 @@ def test_fifos_in_the_caches_walks_never_hang(tmp_path, stress_log):
     (cache / MARKER).write_text("x")
     (pending / MARKER).write_text("x")
     os.mkfifo(pending / "1-1-0123456789abcdef.json")  # named like a dead writer's entry
-    res = _in_child("from addon.core.atomic import sweep_pending; print(sweep_pending())", BRDF_MOMENTS_CACHE=cache)
+    res = _in_child(
+        "from addon.core.file.atomic import sweep_pending; print(sweep_pending())", BRDF_MOMENTS_CACHE=cache
+    )
     assert res.returncode == 0 and res.stdout.strip() == "[]", res.stderr
     stress_log.record(OPENER, "valid", "FIFO in the journal of temporaries: skipped")
 
     code = (
         "import numpy as np\n"
-        "from addon.core.integrate import get_operator, _operator_key, _OPERATOR_PREFIX, RuleParams\n"
+        "from addon.core.profiles.integrate import get_operator, _operator_key, _OPERATOR_PREFIX, RuleParams\n"
         "import os, sys\n"
         "views = np.radians([45.0])\n"
         "folder = os.path.join(sys.argv[1] if len(sys.argv) > 1 else os.environ['BRDF_MOMENTS_CACHE'],"
@@ -228,9 +230,9 @@ def test_every_other_numeric_flag_refuses_huge_values(cmd, flag, tmp_path, stres
 
 def test_the_engine_entry_points_check_the_same_ranges(sample_table, stress_log):
     from addon.core.edit import EditTargets
-    from addon.core.integrate import default_views
     from addon.core.limits import check_targets
-    from addon.core.profiles import compute_profiles
+    from addon.core.profiles.compute import compute_profiles
+    from addon.core.profiles.integrate import default_views
 
     for field, value in (
         ("grazing_boost", 1e308),
@@ -259,8 +261,8 @@ def test_the_engine_entry_points_check_the_same_ranges(sample_table, stress_log)
 
 def _render_calls():
     """(public render function with one numeric parameter set, the parameter's name): the
-    preview engine's sizes, sample counts, seeds and shares (core/render)."""
-    from addon.core.render import (
+    preview engine's sizes, sample counts, seeds and shares (core/preview)."""
+    from addon.core.preview import (
         BakeCache,
         Environment,
         ModelBRDF,
@@ -323,7 +325,7 @@ def test_the_render_engine_refuses_numbers_outside_their_declared_ranges(stress_
             assert len(msg.splitlines()) == 1 and msg.startswith(name + ":"), (name, value, msg)
         stress_log.record(RANGES_CAT, "error", f"render engine: {name} huge, negative, NaN, inf, 2.5, text")
     # the edges are in (each call returns)
-    from addon.core.render import Environment, sphere_layout
+    from addon.core.preview import Environment, sphere_layout
 
     assert sphere_layout(8, 8, 1, 1.0).diameter == 8
     assert Environment.constant((1, 1, 1), 4, 2).pixels.shape[:2] == (2, 4)
@@ -333,9 +335,9 @@ def test_the_edit_engine_refuses_numbers_outside_their_declared_ranges(sample_ta
     """The edit's other public numbers: the albedo's view stride, scale_to_albedo's limit, the
     reachable region's grid."""
     from addon.core.edit import directional_albedo, reachable_region, scale_to_albedo
-    from addon.core.fits import fit_material
-    from addon.core.integrate import default_views
-    from addon.core.profiles import compute_profiles
+    from addon.core.fits.curves import fit_material
+    from addon.core.profiles.compute import compute_profiles
+    from addon.core.profiles.integrate import default_views
 
     table = sample_table("ggx_glossy")
     prof = compute_profiles(table, default_views(4, 80.0))
@@ -447,7 +449,7 @@ def test_a_damaged_compiled_shader_is_compiled_again(blender, tmp_path, damage, 
         return [ln for ln in raw.splitlines() if not ln.startswith(b"#")]
 
     assert again == first and code(open(again, "rb").read()) == code(good)
-    from addon.core.cachefs import verified
+    from addon.core.file.cachefs import verified
 
     assert verified(again)
     stress_log.record(SEALS, "valid", f"compiled OSL shader {damage}: compiled again")

@@ -14,14 +14,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from _stress import assert_finite_tree, assert_profiles_sane
-from addon.core import truncated
 from addon.core.edit import MIN_SIGMA2, EditTargets, edit, resolve_targets, target_energy
 from addon.core.edit.solve import announce
-from addon.core.fits import LAMBERT_VARIANCE, fit_material
-from addon.core.integrate import default_views
-from addon.core.merl import MAX_REFLECTANCE, read_merl, write_merl
-from addon.core.profiles import compute_profiles
-from addon.core.render.lobe import truncnorm_pdf
+from addon.core.file.merl import MAX_REFLECTANCE, read_merl, write_merl
+from addon.core.fits import truncated
+from addon.core.fits.curves import LAMBERT_VARIANCE, fit_material
+from addon.core.preview.lobe import truncnorm_pdf
+from addon.core.profiles.compute import compute_profiles
+from addon.core.profiles.integrate import default_views
 
 pytestmark = pytest.mark.stress
 

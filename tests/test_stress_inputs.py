@@ -26,9 +26,9 @@ from _stress import (
     sha256,
     stored_of,
 )
-from addon.core.fits import fit_material
-from addon.core.merl import FILE_BYTES, N_CELLS, MerlError, read_merl, write_merl
-from addon.core.profiles import compute_profiles
+from addon.core.file.merl import FILE_BYTES, N_CELLS, MerlError, read_merl, write_merl
+from addon.core.fits.curves import fit_material
+from addon.core.profiles.compute import compute_profiles
 
 pytestmark = pytest.mark.stress
 
@@ -312,7 +312,7 @@ _SLOW_WRITER = textwrap.dedent("""
     import os, sys, time
     sys.path.insert(0, sys.argv[1])
     import numpy as np
-    import addon.core.merl as merl
+    import addon.core.file.merl as merl
 
     class Slow:
         # The real file, but the data write stops halfway and waits to be killed.
@@ -370,7 +370,7 @@ def test_writer_killed_midway_never_leaves_a_half_written_destination(tmp_path, 
     with pytest.raises(MerlError, match="truncated"):
         read_merl(tmp_path / stale)
     # ...and the next write removes it: the journal recorded that very file for a writer that
-    # is gone (core/atomic.py), so it is provably the product's.
+    # is gone (core/file/atomic.py), so it is provably the product's.
     write_merl(_const_table(0.75), tmp_path / "next.binary")
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".tmp-")]
     assert read_merl(tmp_path / "next.binary").rho[0, 0] == pytest.approx(0.75)
@@ -378,7 +378,7 @@ def test_writer_killed_midway_never_leaves_a_half_written_destination(tmp_path, 
 
 
 def _const_table(value):
-    from addon.core.merl import MerlTable
+    from addon.core.file.merl import MerlTable
 
     return MerlTable(np.full((3, N_CELLS), value), np.ones((3, N_CELLS), bool))
 
@@ -416,7 +416,7 @@ def test_cli_edit_killed_at_random_moments_leaves_old_or_complete_output(tmp_pat
 def test_a_failing_write_removes_its_temp_and_keeps_the_old_file(tmp_path, monkeypatch, stress_log):
     import errno
 
-    import addon.core.merl as merl
+    import addon.core.file.merl as merl
 
     out = tmp_path / "kept.binary"
     write_merl(_const_table(0.5), out)

@@ -95,9 +95,9 @@ def test_no_command_writes_over_its_inputs(gold, gold_json, tmp_path, stress_log
 
 
 def test_the_engine_guard_refuses_inputs_of_the_run_through_any_writer(gold, tmp_path, stress_log):
-    from addon.core.atomic import atomic_path
-    from addon.core.merl import read_merl
-    from addon.core.safeio import UnsafePath, run_scope
+    from addon.core.file.atomic import atomic_path
+    from addon.core.file.merl import read_merl
+    from addon.core.file.safeio import UnsafePath, run_scope
 
     src = tmp_path / "in.binary"
     shutil.copy(gold, src)
@@ -158,7 +158,7 @@ def test_devices_fifos_and_folders_are_never_replaced(gold, gold_json, tmp_path,
 
 
 def test_files_named_like_temporaries_are_never_deleted(tmp_path, stress_log):
-    from addon.core.atomic import atomic_path, sweep_pending
+    from addon.core.file.atomic import atomic_path, sweep_pending
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
@@ -174,8 +174,8 @@ def test_files_named_like_temporaries_are_never_deleted(tmp_path, stress_log):
 
 
 def test_operator_sweep_removes_only_marked_folders(tmp_path, stress_log):
-    from addon.core.atomic import MARKER
-    from addon.core.integrate import _MEMO, _OPERATOR_PREFIX, OPERATOR_VERSION, get_operator
+    from addon.core.file.atomic import MARKER
+    from addon.core.profiles.integrate import _MEMO, _OPERATOR_PREFIX, OPERATOR_VERSION, get_operator
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
@@ -205,7 +205,7 @@ def test_operator_sweep_removes_only_marked_folders(tmp_path, stress_log):
 def test_a_killed_writer_temp_is_removed_only_while_it_is_the_same_file(tmp_path, stress_log):
     # The journal records the inode: a temp name reused by someone else's file is left alone.
     code = (
-        "import os, sys, time\nsys.path.insert(0, sys.argv[1])\nfrom addon.core.atomic import atomic_path\n"
+        "import os, sys, time\nsys.path.insert(0, sys.argv[1])\nfrom addon.core.file.atomic import atomic_path\n"
         "with atomic_path(sys.argv[2]) as tmp:\n    print(tmp, flush=True)\n    time.sleep(600)\n"
     )
     for replaced in (False, True):
@@ -225,7 +225,7 @@ def test_a_killed_writer_temp_is_removed_only_while_it_is_the_same_file(tmp_path
             os.rename(tmp, tmp + ".moved")
             with open(tmp, "w") as fh:
                 fh.write("someone else's file at the same name")
-        from addon.core.atomic import sweep_pending
+        from addon.core.file.atomic import sweep_pending
 
         sweep_pending()
         assert os.path.exists(tmp) == replaced
@@ -244,8 +244,8 @@ def test_a_killed_writer_temp_is_removed_only_while_it_is_the_same_file(tmp_path
 
 
 def test_image_headers_are_checked_before_decoding(tmp_path, stress_log):
+    from addon.core.file.safeio import UnsafePath, check_image_header
     from addon.core.limits import MAX_IMAGE_PIXELS
-    from addon.core.safeio import UnsafePath, check_image_header
 
     big = tmp_path / "huge.exr"
     big.write_bytes(exr_bytes(30000, 15000, body=bytes(2_600_000)))
@@ -303,7 +303,7 @@ def test_render_refuses_a_huge_map_on_both_paths_without_dying(gold, tmp_path, s
 
 
 def test_an_operator_cache_with_changed_values_is_rebuilt(gold, tmp_path, stress_log):
-    from addon.core import integrate
+    from addon.core.profiles import integrate
 
     views = integrate.default_views(6)
     integrate._MEMO.clear()
@@ -350,7 +350,7 @@ def test_an_operator_cache_with_changed_values_is_rebuilt(gold, tmp_path, stress
 
 
 def test_damaged_bake_cache_entries_are_baked_again(tmp_path, stress_log):
-    from addon.core.render import BakeCache, Environment, ModelBRDF, MomentParams
+    from addon.core.preview import BakeCache, Environment, ModelBRDF, MomentParams
 
     env = Environment.constant((0.5, 0.6, 0.7))
     brdf = ModelBRDF(
@@ -387,7 +387,7 @@ def test_damaged_bake_cache_entries_are_baked_again(tmp_path, stress_log):
 
 
 def test_maps_are_validated_the_same_way_for_both_paths(stress_log):
-    from addon.core.render.envmap import check_radiance
+    from addon.core.preview.envmap import check_radiance
 
     good = np.full((8, 16, 3), 0.5, np.float32)
     check_radiance(good)
@@ -408,7 +408,7 @@ def test_maps_are_validated_the_same_way_for_both_paths(stress_log):
 
 
 def test_sealed_cache_entries_prove_what_they_hold_and_are_bounded(tmp_path, stress_log):
-    from addon.core import cachefs
+    from addon.core.file import cachefs
 
     folder = cachefs.cache_folder(tmp_path / "edits")
     paths = []
@@ -522,7 +522,7 @@ def _interrupt(cmd, wait_for, tmp_path, env=None, timeout=60):
 
 
 def _pending_entries():
-    from addon.core.atomic import pending_dir
+    from addon.core.file.atomic import pending_dir
 
     try:
         return [n for n in os.listdir(pending_dir()) if n.endswith(".json")]
@@ -584,7 +584,7 @@ def test_ctrl_c_stops_a_render_promptly_and_leaves_nothing(gold, tmp_path, stres
     import glob
     import tempfile
 
-    from addon.core.integrate import default_cache_dir
+    from addon.core.profiles.integrate import default_cache_dir
 
     preview = os.path.join(default_cache_dir(), "preview")
 
@@ -658,7 +658,7 @@ def test_damaged_stored_profiles_are_refused_in_one_line(blender, stress_log):
     import base64
 
     from addon.blender.state import pack_profiles, unpack_profiles  # the module needs bpy (its property group)
-    from addon.core.profiles import Profiles
+    from addon.core.profiles.compute import Profiles
 
     n = 4
     ch = {
@@ -708,7 +708,7 @@ def test_damaged_stored_profiles_are_refused_in_one_line(blender, stress_log):
 
 
 def test_distinct_inputs_get_distinct_outputs(gold, tmp_path, stress_log):
-    from addon.core.names import collisions, distinct_name
+    from addon.core.file.names import collisions, distinct_name
 
     folder = tmp_path / "set"
     folder.mkdir()
@@ -749,7 +749,7 @@ def test_a_failed_analyze_leaves_nothing(gold, tmp_path, monkeypatch, stress_log
 def test_a_read_only_folder_names_the_destination(gold, tmp_path, stress_log):
     if os.geteuid() == 0:
         # root ignores permissions: a folder on a read-only mount stands in (mkstemp's error path)
-        from addon.core import atomic
+        from addon.core.file import atomic
 
         folder = tmp_path / "ro"
         folder.mkdir()
@@ -781,7 +781,7 @@ def test_a_read_only_folder_names_the_destination(gold, tmp_path, stress_log):
 
 
 def test_an_interrupted_build_removes_its_temporary_folder(tmp_path, stress_log):
-    from addon.core import integrate
+    from addon.core.profiles import integrate
 
     class Stop(Exception):  # as jobs.Cancelled, raised from the progress callback by Esc
         pass
@@ -831,7 +831,7 @@ def test_npz_inputs_are_bounded_before_unpacking(tmp_path, stress_log):
     # The generic opener other readers (the Neural-BRDF .npz) build on.
     import zipfile
 
-    from addon.core.safeio import UnsafePath, load_npz
+    from addon.core.file.safeio import UnsafePath, load_npz
 
     ok = tmp_path / "ok.npz"
     np.savez(ok, w=np.arange(6.0).reshape(2, 3))

@@ -128,8 +128,8 @@ def test_export_of_colliding_material_names_writes_distinct_files(analysed_gold,
 def test_a_damaged_table_texture_is_written_again_under_a_new_name(fresh, tmp_path, stress_log):
     import samples
     from addon.blender.preview.osl import write_table_texture
-    from addon.core.merl import read_merl
-    from addon.core.render import TableBRDF
+    from addon.core.file.merl import read_merl
+    from addon.core.preview import TableBRDF
 
     brdf = TableBRDF(read_merl(samples.sample_path("gold")))
     first = write_table_texture(brdf, str(tmp_path))

@@ -11,10 +11,10 @@ import pytest
 import samples
 from _stress import assert_finite_tree, assert_profiles_sane
 from addon.core.edit import EditTargets, edit, resolve_targets
-from addon.core.fits import LAMBERT_VARIANCE, fit_material
-from addon.core.integrate import default_views
-from addon.core.merl import MAX_REFLECTANCE, read_merl, write_merl
-from addon.core.profiles import compute_profiles
+from addon.core.file.merl import MAX_REFLECTANCE, read_merl, write_merl
+from addon.core.fits.curves import LAMBERT_VARIANCE, fit_material
+from addon.core.profiles.compute import compute_profiles
+from addon.core.profiles.integrate import default_views
 
 pytestmark = pytest.mark.stress
 

@@ -14,11 +14,11 @@ from scipy.special import ndtr
 from scipy.stats import truncnorm
 
 from _stress import assert_profiles_sane, build_operator_in_memory
-from addon.core.integrate import get_operator, table_sums
-from addon.core.merl import N_CELLS, MerlTable, cell_indices
-from addon.core.moments import exponents, monomials, profiles_from_sums, shift_amplification
-from addon.core.profiles import compute_profiles, function_profiles, specular_values
-from addon.core.quadrature import RuleParams, slice_rule
+from addon.core.file.merl import N_CELLS, MerlTable, cell_indices
+from addon.core.profiles.compute import compute_profiles, function_profiles, specular_values
+from addon.core.profiles.integrate import get_operator, table_sums
+from addon.core.profiles.moments import exponents, monomials, profiles_from_sums, shift_amplification
+from addon.core.profiles.quadrature import RuleParams, slice_rule
 
 pytestmark = pytest.mark.stress
 
@@ -235,7 +235,7 @@ def test_zero_channel_is_undefined_not_nan_in_json(sample_table, stress_log):
 def test_operator_streamed_into_the_cache_equals_the_in_memory_build(tmp_path):
     # The cache is written view by view (low peak memory); it must hold exactly what an
     # in-memory build computes, including the centroid data the recentring reads.
-    from addon.core.integrate import _MEMO
+    from addon.core.profiles.integrate import _MEMO
 
     views = np.radians([0.0, 33.0, 88.0])
     get_operator(views, cache_dir=str(tmp_path))
@@ -259,9 +259,9 @@ def test_the_operator_cache_keeps_the_most_recently_used_within_its_bound(tmp_pa
     # Each operator folder is hundreds of MB: the cache keeps at most OPERATOR_CACHE_MAX_ENTRIES
     # of the current version, least recently used out first, and only folders it marked.
     # (Foreign and unmarked folders are never touched: tests/test_stress_lost.py.)
-    from addon.core.atomic import MARKER
-    from addon.core.integrate import _MEMO, _OPERATOR_PREFIX, _SEAL
+    from addon.core.file.atomic import MARKER
     from addon.core.limits import OPERATOR_CACHE_MAX_ENTRIES
+    from addon.core.profiles.integrate import _MEMO, _OPERATOR_PREFIX, _SEAL
 
     names = [f"{_OPERATOR_PREFIX}{i:020d}" for i in range(OPERATOR_CACHE_MAX_ENTRIES + 2)]
     for age, name in enumerate(names):

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from _stress import ROOT, assert_one_line_error, run_cli, sha256
-from addon.core.names import distinct_name, safe_export_path, safe_name
+from addon.core.file.names import distinct_name, safe_export_path, safe_name
 
 pytestmark = pytest.mark.stress
 
@@ -136,7 +136,7 @@ def test_numpy_load_refuses_pickles_by_default():
 
 def test_a_pickled_operator_cache_is_rebuilt_not_loaded(tmp_path, stress_log):
     # A cache folder is data on disk: an object array planted there must never be unpickled.
-    from addon.core.integrate import _load_operator
+    from addon.core.profiles.integrate import _load_operator
 
     folder = tmp_path / "operator-planted"
     folder.mkdir()

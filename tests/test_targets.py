@@ -79,9 +79,9 @@ def test_the_rule_predicts_a_real_family(views):
     (5 %) at every judged view (SPEC §3). The warp rule of 12-02 missed 40 -> 20 by 0.04 rad."""
     from addon.core.edit import EditTargets, view_targets
     from addon.core.edit.reach import counted_views
-    from addon.core.fits import fit_material
-    from addon.core.merl import tabulate
-    from addon.core.profiles import compute_profiles
+    from addon.core.file.merl import tabulate
+    from addon.core.fits.curves import fit_material
+    from addon.core.profiles.compute import compute_profiles
     from samples.analytic import Phong
 
     measured = {}
@@ -109,9 +109,9 @@ def test_energy_moved_far_from_the_lobes_is_measured(sample_table, views):
     (a constant specular floor holding a few per cent of the energy) is caught at every view."""
     from addon.core.edit import EditTargets, edit
     from addon.core.edit.fidelity import far_energy, measure
-    from addon.core.fits import fit_material
-    from addon.core.merl import MerlTable
-    from addon.core.profiles import compute_profiles
+    from addon.core.file.merl import MerlTable
+    from addon.core.fits.curves import fit_material
+    from addon.core.profiles.compute import compute_profiles
 
     table = sample_table("ggx_glossy")
     prof = compute_profiles(table, views)

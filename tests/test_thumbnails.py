@@ -183,7 +183,7 @@ def test_the_preview_image_is_in_the_saved_file(analysed, tmp_path):
 def test_sphere_labels_stay_in_their_cells_and_leave_nothing_behind(blender):
     """A label wider than its sphere's cell loses words from the end; redrawn shorter, the
     longer one's pixels are gone; the other sphere's cell is never touched."""
-    from addon.core.render import sphere_layout
+    from addon.core.preview import sphere_layout
 
     font = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.plot_font"]
     lay = sphere_layout(128, 64, 2)

@@ -1,4 +1,4 @@
-"""One truncated-Gaussian solver (core.truncated) for the engine, the preview and OSL, against
+"""One truncated-Gaussian solver (core.fits.truncated) for the engine, the preview and OSL, against
 closed forms and an independent implementation (scipy.stats.truncnorm)."""
 
 import math
@@ -8,8 +8,8 @@ import pytest
 from scipy.integrate import quad
 from scipy.stats import truncnorm
 
-from addon.core import truncated as T
-from addon.core.render.lobe import truncated_params
+from addon.core.fits import truncated as T
+from addon.core.preview.lobe import truncated_params
 
 H = math.pi / 2
 

@@ -129,7 +129,7 @@ def _in_child(work, conn):
             last = (done, total)
             conn.send(("progress", done, total))
 
-    from ..core.safeio import run_scope
+    from ..core.file.safeio import run_scope
 
     try:
         with run_scope():  # the inputs this job reads are what its writes may not replace
@@ -237,7 +237,7 @@ class BackgroundJob:
         return {"FINISHED"}
 
     def execute(self, context):
-        from ..core.safeio import run_scope
+        from ..core.file.safeio import run_scope
 
         work = self._prepare(context)
         if work is None:
@@ -275,7 +275,7 @@ class BackgroundJob:
             marks.append((time.monotonic(), done, total))
 
         def run():
-            from ..core.safeio import run_scope
+            from ..core.file.safeio import run_scope
 
             try:
                 with run_scope():

@@ -1,6 +1,6 @@
 """The preview image in the panel, and its live update while a slider moves (SPEC §4).
 
-A slider move (after a short debounce) starts a worker thread running ``core.render.live.work``:
+A slider move (after a short debounce) starts a worker thread running ``core.preview.live.work``:
 a draft synthesis of the edit and a quarter-resolution bake of it, written into the edited half
 of the preview image; then the full synthesis and its full-resolution bake replace it. A newer slider move makes the worker drop what it was doing. Apply makes the same edit and
 re-measures it, and Build Preview shows that.
@@ -17,7 +17,7 @@ import time
 import bpy
 import numpy as np
 
-from ..core.render.live import FINAL_SAMPLES, source_table, work
+from ..core.preview.live import FINAL_SAMPLES, source_table, work
 from . import lifecycle
 from .images import label_image
 
@@ -97,7 +97,7 @@ SHOWN: dict = {}  # material name -> the stage of the edited sphere in its previ
 def replace_sphere(mat, k, rgb, cov, label, stage=None):
     """Sphere ``k`` of the preview image replaced by a (D, D) bake; the other sphere is kept.
     ``stage`` (live, refined, applied) is kept in ``SHOWN``: the label may be too narrow to say."""
-    from ..core.render import sphere_layout
+    from ..core.preview import sphere_layout
 
     rgba = read_preview_image(mat)
     if rgba is None:
@@ -119,8 +119,8 @@ def replace_sphere(mat, k, rgb, cov, label, stage=None):
 
 def _job(mat):
     """What the worker needs, read on the main thread; None when there is no live preview."""
-    from ..core.render import sphere_layout
-    from ..core.sources import source_exists
+    from ..core.file.sources import source_exists
+    from ..core.preview import sphere_layout
     from .preview import load_environment, resolve_environment
 
     state = mat.brdf_moments
@@ -256,8 +256,8 @@ def show_applied(mat, path):
     name, gen = mat.name, _GEN.get(mat.name, 0)
 
     def task():
-        from ..core.merl import read_merl
-        from ..core.render import TableBRDF, bake_sphere
+        from ..core.file.merl import read_merl
+        from ..core.preview import TableBRDF, bake_sphere
 
         rgb, cov = bake_sphere(TableBRDF(read_merl(path), job["prof"]), job["env"], job["d"], FINAL_SAMPLES, 0)
         with _LOCK:

@@ -7,11 +7,13 @@ tree is then exactly the original. Both are plain data edits inside undo-aware o
 Ctrl-Z undoes them.
 
 The group holds one of
-- GGX lobes and a diffuse lobe whose colours follow the view angle through a small packed lookup
-  image (``core.lobes``): plain Diffuse, Glossy, Layer Weight, Math and Image Texture nodes, so
-  any engine and any Blender (EEVEE, Cycles on GPU, Debian's 3.4); an approximation whose
-  error the panel states;
-- a Principled BSDF fitted to the edited table (``core.principled``): the same reach, farther
+- lobes (GGX and Beckmann Glossy, and GGX lobes times a Fresnel factor drawn by a Principled
+  BSDF) and a diffuse lobe whose colours follow the view angle through a small packed lookup
+  image (``core.material.lobes``): plain Diffuse, Glossy, Principled, Mix, Layer Weight, Math and Image
+  Texture nodes, so any engine and any Blender (EEVEE, Cycles on GPU, Debian's 3.4); an
+  approximation whose error, and the least error any mix of Blender's closures reaches on the
+  table (``core.material.node_bound``), the panel states;
+- a Principled BSDF fitted to the edited table (``core.material.principled``): the same reach, farther
   from measured materials, but one node an artist can keep editing;
 - the tabulated OSL shader reading the edited table (Cycles with OSL only): the material itself.
 """
@@ -97,21 +99,63 @@ def fill_principled(group, fit):
     return bsdf
 
 
-def _glossy_node(group, anisotropic=False):
+def _glossy_node(group, anisotropic=False, distribution="GGX"):
     # Blender 4.0 merged Glossy into the anisotropic node's idname; 3.x has both (and there the
     # anisotropic one starts at anisotropy 0.5): Glossy itself, unless the lobe is stretched
     kind = "ShaderNodeBsdfAnisotropic" if anisotropic or bpy.app.version >= (4, 0, 0) else "ShaderNodeBsdfGlossy"
     node = group.nodes.new(kind)
-    node.distribution = "GGX"  # single scattering: the model core.lobes fits
+    node.distribution = distribution  # GGX or BECKMANN, single scattering: the model core.material.lobes fits
     _set_input(node, ("Anisotropy",), 0.0)  # isotropic unless the lookup drives it
     return node
 
 
-def _math(group, op, location, a, b=None):
+def _fresnel_node(group, roughness):
+    """A Principled BSDF drawing a round GGX lobe times its metal's Fresnel factor of theta_d
+    (``core.material.lobes.fresnel_factor``): metallic 1, base colour black, single-scattering GGX; in 3.x
+    its "Specular" (which sets that factor's IOR) at ``lobes.PRINCIPLED_3X_SPECULAR``; no coat,
+    sheen, transmission, subsurface or emission; a white specular tint (4.x: the F82 tint that
+    leaves Schlick's factor as it is)."""
+    from ..core.material.lobes import PRINCIPLED_3X_SPECULAR
+
+    node = group.nodes.new("ShaderNodeBsdfPrincipled")
+    if hasattr(node, "distribution"):
+        node.distribution = "GGX"
+    _set_input(node, ("Base Color",), (0.0, 0.0, 0.0, 1.0))
+    _set_input(node, ("Metallic",), 1.0)
+    _set_input(node, ("Roughness",), roughness)
+    _set_input(node, ("Specular",), PRINCIPLED_3X_SPECULAR)  # 3.x only
+    for name, value in (
+        ("Coat Weight", 0.0),
+        ("Clearcoat", 0.0),
+        ("Sheen Weight", 0.0),
+        ("Sheen", 0.0),
+        ("Transmission Weight", 0.0),
+        ("Transmission", 0.0),
+        ("Subsurface Weight", 0.0),
+        ("Subsurface", 0.0),
+        ("Anisotropic", 0.0),
+        ("Emission Strength", 0.0),
+        ("Thin Film Thickness", 0.0),
+        ("Specular Tint", (1.0, 1.0, 1.0, 1.0)),
+    ):
+        sock = node.inputs.get(name)
+        if sock is None:
+            continue
+        if isinstance(value, tuple) and not hasattr(sock.default_value, "__len__"):
+            value = 0.0  # 3.x's Specular Tint is a float (and with metallic 1 it does nothing)
+        sock.default_value = value
+    if "Emission" in node.inputs:  # 3.x: the emission colour (black: none)
+        node.inputs["Emission"].default_value = (0.0, 0.0, 0.0, 1.0)
+    return node
+
+
+def _math(group, op, location, a, b=None, parent=None):
     """A Math node ``op`` on ``a`` and ``b`` (each a socket to link or a number)."""
     m = group.nodes.new("ShaderNodeMath")
     m.operation = op
     m.location = location
+    if parent is not None:
+        m.parent = parent
     for sock, v in zip(m.inputs, (a, b)):
         if v is None:
             continue
@@ -122,55 +166,84 @@ def _math(group, op, location, a, b=None):
     return m
 
 
-def _across_plane_of_incidence(group):
+def _frame(group, label, location):
+    frame = group.nodes.new("NodeFrame")
+    frame.name = frame.label = label
+    frame.location = location
+    frame.label_size = 14
+    return frame
+
+
+def _node(group, idname, location, parent=None, label=None):
+    node = group.nodes.new(idname)
+    node.location = location
+    if parent is not None:
+        node.parent = parent
+    if label is not None:
+        node.name = node.label = label
+    return node
+
+
+def _across_plane_of_incidence(group, parent=None):
     """N x I, normalised: the tangent across the plane of incidence. Zero at normal
     view, where the fit keeps every lobe round (anisotropy 0 makes Cycles ignore the tangent)."""
-    geo = group.nodes.new("ShaderNodeNewGeometry")
-    geo.location = (-700, 400)
-    cross = group.nodes.new("ShaderNodeVectorMath")
+    geo = _node(group, "ShaderNodeNewGeometry", (-900, 500), parent)
+    cross = _node(group, "ShaderNodeVectorMath", (-700, 500), parent, "N × I")
     cross.operation = "CROSS_PRODUCT"
-    cross.location = (-500, 400)
     group.links.new(geo.outputs["Normal"], cross.inputs[0])
     group.links.new(geo.outputs["Incoming"], cross.inputs[1])
     # a unit tangent (Cycles' own orthonormalisation renders the same without it; one node buys
     # independence from that)
-    unit = group.nodes.new("ShaderNodeVectorMath")
+    unit = _node(group, "ShaderNodeVectorMath", (-520, 500), parent, "tangent across the plane of incidence")
     unit.operation = "NORMALIZE"
-    unit.location = (-350, 400)
     group.links.new(cross.outputs["Vector"], unit.inputs[0])
     return unit.outputs["Vector"]
 
 
+def lobe_title(kind, roughness):
+    """How a lobe's frame names it."""
+    from ..core.material.lobes import BECKMANN, FRESNEL
+
+    if kind == FRESNEL:
+        return f"GGX lobe × Fresnel (roughness {roughness:.3f})"
+    return f"{'Beckmann' if kind == BECKMANN else 'GGX'} lobe (roughness {roughness:.3f})"
+
+
 def fill_lobes(group, fit, image):
-    """The group's content for a ``core.lobes`` fit: the view angle u = theta_o / 90° from the
+    """The group's content for a ``core.material.lobes`` fit: the view angle u = theta_o / 90° from the
     Layer Weight's facing ratio (1 - |N.I|), one Image Texture per row of the lookup ``image``
     (row r read at v = (r + 1/2) / rows: texel centres, so linear filtering never mixes rows),
-    its colour driving a Diffuse BSDF (row 0) or a GGX Glossy BSDF (row k), all added. A
-    stretched lobe reads its aspect q from row K + k; with the tangent across the plane of
-    incidence, Cycles' anisotropy 1 / sqrt(q) - 1 (q > 1) or 1 - sqrt(q) (q < 1) gives alpha sqrt(q)
-    across it and alpha / sqrt(q) in it (Cycles' mapping, the same in 3.x and 4.x)."""
+    its colour driving a Diffuse BSDF (row 0), a Glossy BSDF (row k: GGX or Beckmann) or, for a
+    Fresnel lobe, the factor of a Mix Shader that mixes in a Principled BSDF (``_fresnel_node``;
+    the row is grey, its red channel read), all added. Each closure sits in a labelled frame with
+    the nodes that drive it; a diffuse colour that is black at every view draws no Diffuse BSDF.
+    A stretched lobe reads its aspect q from row K + k; with the tangent across the plane of
+    incidence, Cycles' anisotropy 1 / sqrt(q) - 1 (q > 1) or 1 - sqrt(q) (q < 1) gives alpha
+    sqrt(q) across it and alpha / sqrt(q) in it (Cycles' mapping, the same in 3.x and 4.x)."""
+    from ..core.material.lobes import BECKMANN, FRESNEL
+
     group.nodes.clear()
     out = group.nodes.new("NodeGroupOutput")
-    out.location = (1000, 0)
-    facing = group.nodes.new("ShaderNodeLayerWeight")
+    out.location = (1300, 0)
+    view = _frame(group, "view angle u = θo / 90° (the lookup's column)", (0, 0))
+    facing = _node(group, "ShaderNodeLayerWeight", (-1100, 0), view, "facing 1 - |N·I|")
     facing.inputs["Blend"].default_value = 0.5  # facing = 1 - |N.I| exactly
-    facing.location = (-900, 0)
     # u = theta_o / 90° = arccos(1 - facing) * 2 / pi, clamped to [0, 1]
-    cos_o = _math(group, "SUBTRACT", (-700, 0), 1.0, facing.outputs["Facing"])
-    theta_o = _math(group, "ARCCOSINE", (-550, 0), cos_o.outputs[0])
-    u_node = _math(group, "MULTIPLY", (-400, 0), theta_o.outputs[0], 2.0 / 3.141592653589793)
+    cos_o = _math(group, "SUBTRACT", (-900, 0), 1.0, facing.outputs["Facing"], view)
+    theta_o = _math(group, "ARCCOSINE", (-750, 0), cos_o.outputs[0], parent=view)
+    u_node = _math(group, "MULTIPLY", (-600, 0), theta_o.outputs[0], 2.0 / 3.141592653589793, view)
     u_node.use_clamp = True
     u = u_node.outputs[0]
     rows = fit.lookup_pixels().shape[0]
-    tangent = _across_plane_of_incidence(group) if fit.anisotropic else None
+    tangent = None
+    if fit.anisotropic:
+        tangent = _across_plane_of_incidence(group, _frame(group, "tangent for the stretched lobes", (0, 0)))
 
-    def read_row(r, y):
-        xyz = group.nodes.new("ShaderNodeCombineXYZ")
-        xyz.location = (-200, y)
+    def read_row(r, y, parent, what):
+        xyz = _node(group, "ShaderNodeCombineXYZ", (-350, y), parent, f"lookup row {r}")
         group.links.new(u, xyz.inputs["X"])
         xyz.inputs["Y"].default_value = (r + 0.5) / rows
-        tex = group.nodes.new("ShaderNodeTexImage")
-        tex.location = (0, y)
+        tex = _node(group, "ShaderNodeTexImage", (-180, y), parent, what)
         tex.image = image
         tex.interpolation = "Linear"
         tex.extension = "EXTEND"
@@ -178,40 +251,57 @@ def fill_lobes(group, fit, image):
         return tex.outputs["Color"]
 
     total = None
+    y = -300
     for r in range(fit.weights.shape[0]):
-        y = -300 * r
-        colour = read_row(r, y)
+        if r == 0 and not np.any(fit.weights[0] > 0.0):
+            continue  # no diffuse part at any view
+        y -= 380
+        kind = fit.kinds[r - 1] if r else None
+        title = "diffuse" if r == 0 else f"lobe {r}: {lobe_title(kind, fit.roughness[r - 1])}"
+        frame = _frame(group, title, (0, 0))
         if r == 0:
-            bsdf = group.nodes.new("ShaderNodeBsdfDiffuse")
+            colour = read_row(r, y, frame, "diffuse colour per view")
+            bsdf = _node(group, "ShaderNodeBsdfDiffuse", (300, y), frame, "diffuse")
             bsdf.inputs["Roughness"].default_value = 0.0
-            bsdf.name = bsdf.label = "diffuse"
+            group.links.new(colour, bsdf.inputs["Color"])
+        elif kind == FRESNEL:
+            colour = read_row(r, y, frame, "Fresnel lobe weight per view (grey)")
+            weight = _node(group, "ShaderNodeSeparateXYZ", (100, y), frame, "weight")
+            group.links.new(colour, weight.inputs[0])
+            lobe = _fresnel_node(group, fit.roughness[r - 1])
+            lobe.location, lobe.parent = (300, y - 60), frame
+            lobe.name = lobe.label = lobe_title(kind, fit.roughness[r - 1])
+            bsdf = _node(group, "ShaderNodeMixShader", (600, y), frame, "× weight")
+            group.links.new(weight.outputs["X"], bsdf.inputs["Fac"])
+            group.links.new(lobe.outputs[0], bsdf.inputs[2])  # the first shader input left empty: none
         else:
-            bsdf = _glossy_node(group, fit.anisotropic)
+            colour = read_row(r, y, frame, "lobe colour per view")
+            bsdf = _glossy_node(group, fit.anisotropic, "BECKMANN" if kind == BECKMANN else "GGX")
+            bsdf.location, bsdf.parent = (300, y), frame
             bsdf.inputs["Roughness"].default_value = fit.roughness[r - 1]
-            bsdf.name = bsdf.label = f"GGX lobe {r} (roughness {fit.roughness[r - 1]:.3f})"
+            bsdf.name = bsdf.label = lobe_title(kind, fit.roughness[r - 1])
+            group.links.new(colour, bsdf.inputs["Color"])
             if tangent is not None:
-                q = group.nodes.new("ShaderNodeSeparateXYZ")  # the aspect, grey in the image
-                q.location = (150, y - 150)
-                group.links.new(read_row(fit.n_lobes + r, y - 150), q.inputs[0])
+                q = _node(group, "ShaderNodeSeparateXYZ", (-10, y - 200), frame, "aspect q")
+                group.links.new(read_row(fit.n_lobes + r, y - 200, frame, "aspect per view (grey)"), q.inputs[0])
                 # anisotropy (1 - sqrt q) / max(sqrt q, 1): 1 / sqrt(q) - 1 when stretched across
                 # (q > 1), 1 - sqrt(q) when stretched in the plane (q < 1)
-                root = _math(group, "SQRT", (300, y - 150), q.outputs["X"])
-                less = _math(group, "SUBTRACT", (450, y - 100), 1.0, root.outputs[0])
-                most = _math(group, "MAXIMUM", (450, y - 200), root.outputs[0], 1.0)
-                aniso = _math(group, "DIVIDE", (600, y - 150), less.outputs[0], most.outputs[0])
+                root = _math(group, "SQRT", (120, y - 220), q.outputs["X"], parent=frame)
+                less = _math(group, "SUBTRACT", (120, y - 300), 1.0, root.outputs[0], frame)
+                most = _math(group, "MAXIMUM", (120, y - 380), root.outputs[0], 1.0, frame)
+                aniso = _math(group, "DIVIDE", (120, y - 460), less.outputs[0], most.outputs[0], frame)
+                aniso.label = "anisotropy"
                 group.links.new(aniso.outputs[0], bsdf.inputs["Anisotropy"])
                 group.links.new(tangent, bsdf.inputs["Tangent"])
-        bsdf.location = (300, y)
-        group.links.new(colour, bsdf.inputs["Color"])
         if total is None:
             total = bsdf.outputs[0]
         else:
-            add = group.nodes.new("ShaderNodeAddShader")
-            add.location = (600, y)
+            add = _node(group, "ShaderNodeAddShader", (1000, y), None, "add")
             group.links.new(total, add.inputs[0])
             group.links.new(bsdf.outputs[0], add.inputs[1])
             total = add.outputs[0]
-    group.links.new(total, out.inputs[0])
+    if total is not None:
+        group.links.new(total, out.inputs[0])
     return group
 
 
@@ -285,8 +375,19 @@ def restore(mat) -> bool:
 # --- what Apply writes ---------------------------------------------------------------------------
 
 
-def apply_principled(mat, fit):
-    label = f"BRDF Moments edit (Principled approx., error {100 * fit.error:.1f} %)"
+def principled_label(fit, bound=None):
+    # Blender keeps 63 bytes of a label: the error, then the bound when it is known
+    said = f", bound {100 * bound:.1f} %" if bound is not None else ""
+    return f"BRDF Moments edit: Principled (error {100 * fit.error:.1f} %{said})"
+
+
+def lobes_label(fit):
+    after = f"bound {100 * fit.bound:.1f} %" if fit.bound is not None else f"albedo {100 * fit.albedo_error:.1f} %"
+    return f"BRDF Moments edit: {fit.n_lobes} lobes (error {100 * fit.error:.1f} %, {after})"
+
+
+def apply_principled(mat, fit, bound=None):
+    label = principled_label(fit, bound)
     group = apply_group(mat, label)
     fill_principled(group, fit)
     return group
@@ -297,15 +398,31 @@ def apply_lobes(mat, fit, storage="PACK"):
     pixels = np.ascontiguousarray(fit.lookup_pixels()[::-1])  # top row first, as image files are written
     _texture_file(mat, pixels, storage, LOOKUP_IMAGE, "brdfm-lookup")
     image = bpy.data.images[LOOKUP_IMAGE.format(mat.name)]
-    # Blender keeps 63 bytes of a label: the error first, the albedo after it
-    stretched = "stretched " if fit.anisotropic else ""
-    label = (
-        f"BRDF Moments edit: {fit.n_lobes} {stretched}GGX lobes approx. (error {100 * fit.error:.1f} %, "
-        f"albedo within {100 * fit.albedo_error:.1f} %)"
-    )
+    label = lobes_label(fit)
     group = apply_group(mat, label)
     fill_lobes(group, fit, image)
     return group
+
+
+def set_bound(mat, bound):
+    """Keep ``node_bound`` of the applied edit with its fit (the panel states it) and in the
+    group node's label."""
+    state = mat.brdf_moments
+    node = mat.node_tree.nodes.get(GROUP_NODE) if mat.node_tree is not None else None
+    if state.artist_shader_used == "lobes":
+        fit = state.lobes_fit()
+        if fit is None:
+            return
+        fit = fit.with_bound(bound)
+        state.lobes_data = json.dumps(fit.as_dict())
+        if node is not None:
+            node.label = lobes_label(fit)
+    elif state.artist_shader_used == "principled" and state.principled_data:
+        d = json.loads(state.principled_data)
+        d["bound"] = float(bound)
+        state.principled_data = json.dumps(d)
+        if node is not None:
+            node.label = principled_label(state.principled_fit(), bound)
 
 
 TEXTURE_IMAGE = "BRDFM table: {}"
@@ -395,7 +512,7 @@ def relink_textures():
             os.makedirs(folder, exist_ok=True)
             path = os.path.join(folder, name)
             if not os.path.isfile(path):
-                from ..core.atomic import atomic_path
+                from ..core.file.atomic import atomic_path
 
                 with atomic_path(path, ".exr") as tmp:
                     with open(tmp, "wb") as fh:

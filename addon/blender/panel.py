@@ -465,20 +465,33 @@ def _renders(mat):
     used = state.artist_shader_used
     lobes = state.lobes_fit() if used == "lobes" else None
     if lobes is not None:
+        bound = f", bound {100 * lobes.bound:.1f} %" if lobes.bound is not None else ""
         return (
-            f"Renders lobes ≈ (error {100 * lobes.error:.1f} %)",
-            f"'{mat.name}' renders {lobes.n_lobes} GGX lobes and a diffuse lobe fitted to the edited table, "
-            f"their colours{' and stretch' if lobes.anisotropic else ''} following the view angle: an "
-            f"approximation, BRDF error {100 * lobes.error:.1f} % (cosine-weighted, as Cycles renders it"
-            f"), albedo within {100 * lobes.albedo_error:.1f} %",
+            f"Renders lobes ≈ (error {100 * lobes.error:.1f} %{bound})",
+            f"'{mat.name}' renders {lobes.n_lobes} lobes ({lobes.describe()}) and a diffuse lobe fitted to the "
+            f"edited table, their colours{' and stretch' if lobes.anisotropic else ''} following the view angle: "
+            f"an approximation, BRDF error {100 * lobes.error:.1f} % (cosine-weighted, as Cycles renders it"
+            f"), albedo within {100 * lobes.albedo_error:.1f} %"
+            + (
+                f"; the least error any mix of Blender's closures reaches on this table is {100 * lobes.bound:.1f} %"
+                if lobes.bound is not None
+                else ""
+            ),
         )
     shader = state.principled_fit() if used == "principled" else None
     if shader is not None:
+        bound = state.principled_bound()
+        said = f", bound {100 * bound:.1f} %" if bound is not None else ""
         return (
-            f"Renders Principled ≈ (error {100 * shader.error:.1f} %)",
+            f"Renders Principled ≈ (error {100 * shader.error:.1f} %{said})",
             f"'{mat.name}' renders a Principled BSDF fitted to the edited table: an approximation, "
             f"BRDF error {100 * shader.error:.1f} % (cosine-weighted), albedo within "
-            f"{100 * shader.albedo_error:.1f} %",
+            f"{100 * shader.albedo_error:.1f} %"
+            + (
+                f"; the least error any mix of Blender's closures reaches on this table is {100 * bound:.1f} %"
+                if bound is not None
+                else ""
+            ),
         )
     if used == "osl":
         return (
@@ -512,6 +525,16 @@ def draw_result(layout, mat, cells):
     renders = _renders(mat)
     if renders is not None:
         wrapped(col, renders[0], cells, icon="INFO")
+        if "bound" not in renders[0] and state.artist_shader_used in ("lobes", "principled"):
+            # its own background job (6 s and more), after Apply
+            button(
+                layout,
+                cells,
+                "brdf_moments.node_bound",
+                "Find the Bound",
+                "DRIVER_DISTANCE",
+                material=mat.name,
+            )
         button(layout, cells, "brdf_moments.restore_material", "Restore Shader", "LOOP_BACK", material=mat.name)
 
 

@@ -86,7 +86,7 @@ def energy_spline(theta, fit, channel_fit=None):
     keys = ("alpha_b", "alpha1", "m1")
     if any(f.get(k) is None for k in keys) or fit.get("theta0") is None or fit.get("theta1") is None:
         return np.full_like(theta, np.nan)
-    from ..core.fits import energy_curve
+    from ..core.fits.curves import energy_curve
 
     ab, a1, m1 = (float(f[k]) for k in keys)
     return energy_curve(theta, ab, float(fit["theta0"]), float(fit["theta1"]), a1, m1)
@@ -357,7 +357,7 @@ def region_plot(
     curve (SPEC §3), with the sliders' point on it (green). The variance axis is logarithmic:
     regions span two decades. ``compact``: the panel's chart
     (about 200 px): a short title and axis label, the legend wrapped over as many lines as it needs."""
-    from ..core.fits import LAMBERT_VARIANCE, correlation_curve
+    from ..core.fits.curves import LAMBERT_VARIANCE, correlation_curve
     from .plot_font import ADVANCE, draw_text, text_width
 
     c = Canvas(width, height)

@@ -10,9 +10,9 @@ import math
 import bpy
 import numpy as np
 
-from ..core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
+from ..core.fits.curves import LAMBERT_VARIANCE, MIN_SIGMA2
 from ..core.limits import MAX_ELEVATIONS, MAX_RENDER_SIZE, MU_SLOPE_RANGE, RANGES
-from ..core.moments import CHANNELS, PROFILE_KEYS
+from ..core.profiles.moments import CHANNELS, PROFILE_KEYS
 from . import lifecycle
 from .images import draw_later
 
@@ -63,7 +63,7 @@ def _stored_floats(data: bytes):
 
 
 def unpack_profiles(text: str):
-    from ..core.profiles import Profiles
+    from ..core.profiles.compute import Profiles
 
     # Stored in the .blend, so it may be damaged or edited: checked before anything uses it.
     try:
@@ -306,7 +306,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         """The lobe mixture fitted to the last edited table, or None (also when unreadable)."""
         import json
 
-        from ..core.lobes import LobeFit
+        from ..core.material.lobes import LobeFit
 
         if not self.lobes_data:
             return None
@@ -319,7 +319,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         """The Principled BSDF fitted to the last edited table, or None."""
         import json
 
-        from ..core.principled import PrincipledFit
+        from ..core.material.principled import PrincipledFit
 
         if not self.principled_data:
             return None
@@ -327,6 +327,15 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         return PrincipledFit(
             tuple(d["base_color"]), d["metallic"], d["roughness"], d["specular"], d["error"], d["albedo_error"]
         )
+
+    def principled_bound(self):
+        """``node_bound`` of the table the last Principled fit was fitted to, or None."""
+        import json
+
+        if not self.principled_data:
+            return None
+        b = json.loads(self.principled_data).get("bound")
+        return None if b is None else float(b)
 
     def profiles(self):
         return unpack_profiles(self.profiles_data) if self.profiles_data else None
@@ -385,8 +394,8 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
     def model_params(self, edited=False):
         """The moment model (paper Eq. 7) of the fits, or of the fits moved by the sliders."""
-        from ..core.fits import correlation_curve
-        from ..core.render import MomentParams
+        from ..core.fits.curves import correlation_curve
+        from ..core.preview import MomentParams
 
         params = MomentParams.from_fit(self.fit(), tuple(self.kd))
         if not edited:

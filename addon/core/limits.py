@@ -52,7 +52,8 @@ EDITS_CACHE_MAX_BYTES = 600 << 20
 
 # --- every numeric input: a declared finite range --------------------------------------------
 # One table for the command line's flags, the extension's properties and the engine's public
-# functions, so that a value refused in one is refused in all, with one line naming the input.
+# functions (every size, count and slider value they take; tests/test_ranges.py finds them), so
+# that a value refused in one is refused in all, with one line naming the input and its range.
 # A range bounds what is accepted at all; inside it the engine may still clamp to what a
 # material can reach (the edit's reachable region), with a warning.
 
@@ -81,7 +82,7 @@ class Range:
         one line naming ``label`` (default: the flag)."""
         label = label or self.flag
         if isinstance(value, bool) or not isinstance(value, (int, float)) and not hasattr(value, "__float__"):
-            raise ValueError(f"{label}: not a number: {value!r}")
+            raise ValueError(f"{label}: not a number ({self.describe()}): {value!r}")
         if isinstance(value, numbers.Integral):  # exact: a float would round a huge int
             v = int(value)
             if not self.low <= v <= self.high:
@@ -92,11 +93,11 @@ class Range:
         try:
             v = float(value)
         except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"{label}: not a number: {value!r}") from None
+            raise ValueError(f"{label}: not a number ({self.describe()}): {value!r}") from None
         if v != v or v in (float("inf"), float("-inf")):
-            raise ValueError(f"{label}: not a finite number: {value!r}")
+            raise ValueError(f"{label}: not a finite number ({self.describe()}): {value!r}")
         if self.integer and v != int(v):
-            raise ValueError(f"{label}: not a whole number: {value!r}")
+            raise ValueError(f"{label}: not a whole number ({self.describe()}): {value!r}")
         if v < self.low:
             raise ValueError(f"{label}: must be at least {self.low:g} ({self.describe()}), got {value!r}")
         if v > self.high:
@@ -148,7 +149,7 @@ RANGES = {
         Range("samples", 1, MAX_SAMPLES, integer=True),
         Range("lobe_samples", 1, MAX_LOBE_SAMPLES, integer=True),
         Range("bake_samples", 1, MAX_BAKE_SAMPLES, integer=True),
-        # the render engine's own parameters (core/render), named as in its functions
+        # the render engine's own parameters (core/preview), named as in its functions
         Range("diameter", 2, MAX_RENDER_SIZE, integer=True, flag="diameter"),
         Range("light_samples", 0, MAX_BAKE_SAMPLES, integer=True, flag="light_samples"),
         Range("spp", 0, MAX_REFERENCE_SAMPLES, integer=True, flag="spp"),
@@ -159,6 +160,25 @@ RANGES = {
         Range("spheres", 1, MAX_SPHERES, integer=True, flag="count"),
         Range("fill", 0.1, 1.0, flag="fill"),  # a sphere's share of its cell
         Range("light_clusters", 1, 4096, integer=True, flag="count"),
+        Range("bake_cache_items", 1, BAKE_CACHE_MAX_ENTRIES, integer=True, flag="max_items"),  # bakes in memory
+        Range("bake_cache_files", 1, BAKE_CACHE_MAX_ENTRIES, integer=True, flag="max_files"),  # and on disk
+        Range("bake_cache_bytes", 1, BAKE_CACHE_MAX_BYTES, integer=True, flag="max_bytes"),
+        Range("contrast", 1e-3, 1e6, flag="contrast"),  # a map's clamp, in multiples of its mean luminance
+        Range("chunk", 1, 1 << 20, integer=True, flag="chunk"),  # directions per block of a sum
+        Range("sampler_rows", 1, MAX_ELEVATIONS, integer=True, flag="n_rows"),  # HalfVectorSampler
+        Range("sampler_rings", 1, 1024, integer=True, flag="n_rings"),
+        Range("sampler_sub", 1, 64, integer=True, flag="sub"),  # quadrature points per ring, each way
+        # the engine's other counts: the integrators, the model, the artist's material
+        Range("stride", 1, MAX_ELEVATIONS, integer=True, flag="stride"),  # every stride-th view
+        Range("iterations", 1, 1000, integer=True, flag="iters"),  # the truncated-Gaussian solve (40)
+        Range("mc_samples", 1, 1 << 32, integer=True, flag="n_samples"),  # Monte Carlo profiles
+        Range("rule_lines", 1, 16384, integer=True, flag="n_phi"),  # a slice rule's rays and panels
+        Range("gauss_nodes", 1, 32, integer=True, flag="n_gauss"),  # Gauss nodes per panel
+        Range("rule_probes", 2, 1 << 16, integer=True, flag="n_probe"),  # cell probes per strip line
+        Range("fade_angle", 0.0, 90.0, flag="fade_from"),  # where the rays hand over to the strips, deg
+        Range("lobes", 1, 16, integer=True, flag="n_lobes"),  # the artist's material's lobes (5)
+        Range("lookup_texels", 1, MAX_ELEVATIONS, integer=True, flag="n_views"),  # its lookup (18)
+        Range("near_mirror_deg", 1e-3, 90.0, flag="theta_h_max_deg"),  # rings about the normal (0.3)
     )
 }
 

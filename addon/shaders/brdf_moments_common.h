@@ -93,7 +93,7 @@ void bm_z_moments(float m, float s, output float mu, output float c2, output flo
 
 // The largest variance a truncated Gaussian with this mean approaches: the truncated
 // exponential's, 1/u^2 - 1/sinh(u)^2 (times h^2) with coth(u) - 1/u = mean / h (bisection).
-// core/truncated.py variance_cap.
+// core/fits/truncated.py variance_cap.
 float bm_variance_cap(float mean)
 {
     float mu = clamp(mean / BM_HALF_PI, -1.0, 1.0);
@@ -113,7 +113,7 @@ float bm_variance_cap(float mean)
 }
 
 // (m, s) of the Gaussian whose truncation to [-pi/2, pi/2] has this mean and variance, by the
-// engine's one rule (core/truncated.py solve): the mean kept, the variance capped at
+// engine's one rule (core/fits/truncated.py solve): the mean kept, the variance capped at
 // BM_CAP_FRACTION of bm_variance_cap; then Newton in (m, log s) on the scaled residuals, exact
 // Jacobian, step halving; s in [1e-4, BM_MAX_S], m steps bounded by 0.5 + 4 s.
 void bm_truncated_params(float mean_in, float var_in, output float m, output float s)

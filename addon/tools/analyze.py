@@ -10,13 +10,13 @@ import time
 
 import numpy as np
 
-from ..core.names import distinct_name, material_name
+from ..core.file.names import distinct_name, material_name
 
 
 def _weights_specs(item, problems):
     """A Neural-BRDF weights source with no material chosen: all of its materials, FILE:NAME."""
-    from ..core.merl import MerlError
-    from ..core.nbrdf import list_materials
+    from ..core.file.merl import MerlError
+    from ..core.file.nbrdf import list_materials
 
     try:
         return [f"{item}:{name}" for name in list_materials(item)]
@@ -27,7 +27,7 @@ def _weights_specs(item, problems):
 
 def _qualify(paths):
     """Names per input; materials of different weights sets that share a name get the set's stem."""
-    from ..core.sources import parse_source
+    from ..core.file.sources import parse_source
 
     names = [material_name(p) for p in paths]
     count = {}
@@ -49,7 +49,7 @@ def input_names(paths):
 
 def collect_inputs(items):
     """Expand folders to their .binary files, weights sets to their materials; (paths, problems)."""
-    from ..core.sources import is_weights_source, parse_source
+    from ..core.file.sources import is_weights_source, parse_source
 
     paths, problems = [], []
     for item in items:
@@ -77,8 +77,8 @@ def collect_inputs(items):
     for name, ps in names.items():
         if len(ps) > 1:
             problems.append(f"{ps[1]}: material name '{name}' is used by another input too ({ps[0]})")
+    from ..core.file.names import collisions
     from ..core.limits import MAX_INPUTS
-    from ..core.names import collisions
 
     for a, b in collisions(list(names)):
         problems.append(
@@ -93,13 +93,13 @@ def collect_inputs(items):
 
 def load_profiles(path, views=None, name=None, floor="min"):
     """Profiles of a material source (MERL file, FILE:NAME of weights), or a profiles JSON."""
-    from ..core.nbrdf import read_table
-    from ..core.profiles import Profiles, compute_profiles
+    from ..core.file.nbrdf import read_table
+    from ..core.profiles.compute import Profiles, compute_profiles
 
     if str(path).endswith(".json"):
+        from ..core.file.merl import MerlError
+        from ..core.file.safeio import UnsafePath, load_json
         from ..core.limits import MAX_PROFILES_JSON_BYTES
-        from ..core.merl import MerlError
-        from ..core.safeio import UnsafePath, load_json
 
         try:
             data = load_json(path, MAX_PROFILES_JSON_BYTES, "profiles JSON")
@@ -116,8 +116,8 @@ def load_profiles(path, views=None, name=None, floor="min"):
 
 
 def _work(path, floor="min"):
-    from ..core.fits import fit_material
-    from ..core.merl import MerlError
+    from ..core.file.merl import MerlError
+    from ..core.fits.curves import fit_material
 
     t = time.perf_counter()
     try:
@@ -140,7 +140,7 @@ def run_parallel(paths, workers=None, progress=None, floor="min"):
     """(path, profiles_json, fit, error, seconds) per input, in input order."""
     import functools
 
-    from ..core.integrate import default_views, get_operator
+    from ..core.profiles.integrate import default_views, get_operator
 
     get_operator(default_views())  # build or load once, before forking: children share it
     workers = workers or os.cpu_count() or 1
@@ -217,7 +217,7 @@ def summary_rows(profiles, fits):
 
 
 def write_text_atomic(text, path):
-    from ..core.atomic import atomic_path
+    from ..core.file.atomic import atomic_path
 
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         fh.write(text)
@@ -251,8 +251,8 @@ def _plot_all(profiles, fits, out_dir, workers):
 def _publish(out_dir, inputs, docs, fits, summary, profiles, workers):
     """Write every result into a staging folder inside ``out_dir``, then move each into place:
     an error or Ctrl-C before the moves leaves nothing (the staging folder is removed)."""
-    from ..core.atomic import temp_folder, write_json_atomic
-    from ..core.safeio import guard_output
+    from ..core.file.atomic import temp_folder, write_json_atomic
+    from ..core.file.safeio import guard_output
 
     finals = list(docs) + ["fits.json", "summary.csv"]
     if profiles is not None:
@@ -284,8 +284,8 @@ def _publish(out_dir, inputs, docs, fits, summary, profiles, workers):
 
 def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, floor="min"):
     """Profiles, fits, per-material JSON, summary CSV and plots for a set. Returns problems."""
-    from ..core.fits import fit_set
-    from ..core.profiles import Profiles
+    from ..core.fits.curves import fit_set
+    from ..core.profiles.compute import Profiles
 
     paths, problems = collect_inputs(items)
     bad_names = {p.split(":")[0] for p in problems}
@@ -318,7 +318,7 @@ def analyze(items, out_dir, workers=None, progress=None, plots=True, log=print, 
     writer.writeheader()
     for row in summary_rows(profiles, fits["materials"]):
         writer.writerow({k: ("" if v is None else (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()})
-    from ..core.sources import parse_source
+    from ..core.file.sources import parse_source
 
     inputs = [parse_source(p)[0] for p in paths]  # FILE:NAME reads FILE: that is the input to guard
     _publish(out_dir, inputs, docs, fits, buf.getvalue(), profiles if plots else None, workers)

@@ -122,8 +122,8 @@ def truncated_gaussian(mean_theta, sigma):
 
 
 def bench_closed(quick):
-    from ..core.integrate import grid_sums
-    from ..core.profiles import _stats, function_profiles, monte_carlo_profiles
+    from ..core.profiles.compute import _stats, function_profiles, monte_carlo_profiles
+    from ..core.profiles.integrate import grid_sums
 
     sigmas = (0.5, 0.1, 0.02, 0.005)
     views = np.radians([0.0, 30.0, 60.0, 85.0])
@@ -196,8 +196,8 @@ def reference_profiles(table_values, views, cache_dir, tag, budget=None, times=N
     None or {} is its defaults. ``times``, a list, receives the seconds per view (from the
     cache's side file when the sums were cached; NaN if that is missing).
     """
-    from ..core.integrate import NORMAL_VIEW, reference_sums
-    from ..core.moments import profiles_from_sums
+    from ..core.profiles.integrate import NORMAL_VIEW, reference_sums
+    from ..core.profiles.moments import profiles_from_sums
 
     budget = dict(budget or {})
     views = np.asarray(views, float)
@@ -253,9 +253,9 @@ def bench_trilinear(quick):
     4 channel sets); the operator's cold build is timed when this run makes it."""
     import samples
 
-    from ..core.integrate import default_cache_dir
-    from ..core.merl import read_merl
-    from ..core.profiles import compute_profiles
+    from ..core.file.merl import read_merl
+    from ..core.profiles.compute import compute_profiles
+    from ..core.profiles.integrate import default_cache_dir
 
     names = (
         ("ggx_glossy", "ggx_mirror")
@@ -328,10 +328,10 @@ def _view_errors(got, want):
 def bench_tables(quick, names=None):
     import samples
 
-    from ..core.integrate import default_cache_dir, default_views, grid_sums, table_slice_evaluator
-    from ..core.merl import read_merl
-    from ..core.profiles import _stats, compute_profiles, diffuse_floor, monte_carlo_profiles, specular_values
-    from ..core.quadrature import RuleParams
+    from ..core.file.merl import read_merl
+    from ..core.profiles.compute import _stats, compute_profiles, diffuse_floor, monte_carlo_profiles, specular_values
+    from ..core.profiles.integrate import default_cache_dir, default_views, grid_sums, table_slice_evaluator
+    from ..core.profiles.quadrature import RuleParams
 
     names = names or (
         ("lambertian", "ggx_mirror", "ggx_rough", "rgl/spectralon")
@@ -488,8 +488,8 @@ def hwm():
             return int(line.split()[1])
 
 import samples
-from addon.core.merl import read_merl
-from addon.core.profiles import compute_profiles
+from addon.core.file.merl import read_merl
+from addon.core.profiles.compute import compute_profiles
 path = samples.sample_path("ggx_glossy")
 base = hwm()
 t = time.perf_counter()
@@ -525,7 +525,7 @@ def bench_memory():
 
 def _seal_cost(cache):
     """What checking the operator's seal (size and CRC-32 of every file) costs once per process."""
-    from ..core import integrate
+    from ..core.profiles import integrate
 
     views = integrate.default_views()
     folder = os.path.join(cache, integrate._OPERATOR_PREFIX + integrate._operator_key(views, integrate.RuleParams()))
@@ -546,9 +546,9 @@ def bench_fits(quick):
 
     import samples
 
-    from ..core.fits import fit_material
-    from ..core.merl import read_merl, tabulate, write_merl
-    from ..core.profiles import compute_profiles
+    from ..core.file.merl import read_merl, tabulate, write_merl
+    from ..core.fits.curves import fit_material
+    from ..core.profiles.compute import compute_profiles
     from .analyze import analyze
 
     names = ("ggx_mirror", "ggx_glossy", "ggx_rough", "gold", "phong", "red_plastic")
@@ -633,7 +633,7 @@ def _reread(table, theta_o, split):
     import tempfile
 
     from ..core.edit.scale import measure
-    from ..core.merl import read_merl, write_merl
+    from ..core.file.merl import read_merl, write_merl
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "edited.binary")
@@ -685,7 +685,7 @@ def bench_edit(quick):
 
     from ..core.edit import EditTargets, edit
     from ..core.edit.scale import measure
-    from ..core.merl import read_merl
+    from ..core.file.merl import read_merl
 
     analytic = [n for n in samples.CATALOG if n != "lambertian"]
     measured = samples.measured_names()
@@ -894,7 +894,7 @@ def bench_rule(quick):
     material. Phong and Blinn-Phong, which no slope scaling maps exactly, beside them."""
     from ..core.edit import EditTargets, edit
     from ..core.edit.scale import measure
-    from ..core.merl import tabulate
+    from ..core.file.merl import tabulate
 
     cases = []
     for fam in ("ggx", "beckmann"):
@@ -973,8 +973,8 @@ def bench_curves(quick):
 
     from ..core.edit.scale import measure, solve_scale
     from ..core.edit.solve import roughness_source
-    from ..core.fits import correlation_curve, fit_correlation
-    from ..core.merl import read_merl
+    from ..core.file.merl import read_merl
+    from ..core.fits.curves import correlation_curve, fit_correlation
     from .plots import plot_material_curves
 
     names = samples.measured_names()

@@ -27,12 +27,12 @@ def bench_artist(quick=False):
     import samples
 
     from ..blender.live import upsample
-    from ..core.fits import fit_material
-    from ..core.merl import read_merl
-    from ..core.principled import fit_principled
-    from ..core.profiles import compute_profiles
-    from ..core.render import MomentParams, TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
-    from ..core.render.live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES
+    from ..core.file.merl import read_merl
+    from ..core.fits.curves import fit_material
+    from ..core.material.principled import fit_principled
+    from ..core.preview import MomentParams, TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
+    from ..core.preview.live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES
+    from ..core.profiles.compute import compute_profiles
     from ..wheel import import_bpy
     from .bench_preview import _environment, _read_exr, ground_truth
 
@@ -161,17 +161,17 @@ def bench_live(quick=False):
     """``bench --only live``: slider move to the live preview's first image (the draft synthesis,
     the engine's table BRDF, the quarter-size bake), then to the refined image (the full
     synthesis, the full-size bake); the image write and the panel redraw are not included.
-    Engine only (no bpy): the same work the panel's worker thread does (``core.render.live.work``),
+    Engine only (no bpy): the same work the panel's worker thread does (``core.preview.live.work``),
     step by step to time each."""
     import samples
 
     from ..core.edit import EditTargets
     from ..core.edit.solve import roughness_region
-    from ..core.fits import fit_material
-    from ..core.merl import read_merl
-    from ..core.profiles import compute_profiles
-    from ..core.render import Environment, TableBRDF, bake_sphere
-    from ..core.render.live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
+    from ..core.file.merl import read_merl
+    from ..core.fits.curves import fit_material
+    from ..core.preview import Environment, TableBRDF, bake_sphere
+    from ..core.preview.live import FINAL_SAMPLES, LIVE_DIAMETER_DIV, LIVE_SAMPLES, fast_edit
+    from ..core.profiles.compute import compute_profiles
 
     d = 115  # one sphere of the 256-wide preview
     d0 = max(d // LIVE_DIAMETER_DIV, 8)
@@ -254,12 +254,12 @@ def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=
     from ..blender.preview import render_still
     from ..blender.preview import scene as sc
     from ..core.edit import EditTargets, edit
-    from ..core.fits import fit_material
-    from ..core.lobes import fit_lobes, shadowing_for
-    from ..core.merl import read_merl
-    from ..core.principled import fit_principled
-    from ..core.profiles import compute_profiles
-    from ..core.render import TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
+    from ..core.file.merl import read_merl
+    from ..core.fits.curves import fit_material
+    from ..core.material.lobes import fit_lobes, shadowing_for
+    from ..core.material.principled import fit_principled
+    from ..core.preview import TableBRDF, bake_sphere, normalized_rmse, relative_rmse, sphere_layout
+    from ..core.profiles.compute import compute_profiles
     from ..wheel import import_bpy
     from .bench_preview import _environment, _read_exr
 
@@ -343,7 +343,7 @@ def bench_nodes_render(spp=256, eevee=False, names=RENDER_NAMES, demo=True, out=
 
 
 def _tmp_dir():
-    from ..core.integrate import default_cache_dir
+    from ..core.profiles.integrate import default_cache_dir
 
     path = os.path.join(default_cache_dir(), "preview")
     os.makedirs(path, exist_ok=True)

@@ -37,7 +37,7 @@ GRAZING_PEAK_DEG = 80.0
 
 
 def backscatter_ratio(table) -> float:
-    from ..core.merl import lookup
+    from ..core.file.merl import lookup
 
     wo = np.array([[math.sin(math.pi / 4), 0.0, math.cos(math.pi / 4)]])
     back, _ = lookup(table, wo, wo)
@@ -47,7 +47,7 @@ def backscatter_ratio(table) -> float:
 
 def in_plane_lobe(table, kd, view_deg=30.0):
     """(peak angle in degrees, width at half, width at a tenth) of the in-plane specular part."""
-    from ..core.merl import lookup
+    from ..core.file.merl import lookup
 
     to = math.radians(view_deg)
     ang = np.radians(np.linspace(-89.0, 89.0, 1781))
@@ -75,8 +75,8 @@ def in_plane_lobe(table, kd, view_deg=30.0):
 def minimum_cell_angle(table) -> float:
     """Polar angle (degrees) of the lower direction of the cell that sets the paper's floor
     (the minimum over the 45 deg slice, channel by channel; the largest of the three)."""
-    from ..core.integrate import get_operator
-    from ..core.profiles import DIFFUSE_VIEW, _slice_lower_cosine
+    from ..core.profiles.compute import DIFFUSE_VIEW, _slice_lower_cosine
+    from ..core.profiles.integrate import get_operator
 
     cells = np.asarray(get_operator(np.array([DIFFUSE_VIEW]), memo=False).view(0)[0])
     cosine = _slice_lower_cosine(cells)
@@ -110,7 +110,7 @@ def _analyze(inputs, out, floor):
         rows = {r["material"]: r for r in csv.DictReader(fh)}
     nan = 0
     for name in rows:
-        from ..core.names import distinct_name
+        from ..core.file.names import distinct_name
 
         with open(os.path.join(out, "materials", distinct_name(name) + ".json")) as fh:
             prof = json.load(fh)["profiles"]
@@ -122,9 +122,9 @@ def _analyze(inputs, out, floor):
 def bench_measured(quick=False):
     import samples
 
-    from ..core import nbrdf
-    from ..core.integrate import default_views, get_operator
-    from ..core.profiles import ROBUST_MAX_ANGLE, ROBUST_PERCENTILE, diffuse_floor
+    from ..core.file import nbrdf
+    from ..core.profiles.compute import ROBUST_MAX_ANGLE, ROBUST_PERCENTILE, diffuse_floor
+    from ..core.profiles.integrate import default_views, get_operator
 
     get_operator(default_views())  # the slice operator is cached per machine; not what is timed
     sets = [os.path.join(samples.MEASURED_DIR, f) for f in samples.MEASURED_SETS.values()]

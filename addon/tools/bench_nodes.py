@@ -1,11 +1,15 @@
 """``python -m addon.tools.bench_nodes [--quick] [names...]``: the artist's material outside OSL
 (issue 28), engine only. For every measured material and its edits (σ̃² ×0.5, ×2, strength
-0.5), the lobe mixture the nodes render (``core.lobes``) and the single Principled BSDF
-(``core.principled``) against the edited table: BRDF error and directional-albedo error (as
+0.5), the lobe mixture the nodes render (``core.material.lobes``) and the single Principled BSDF
+(``core.material.principled``) against the edited table: BRDF error and directional-albedo error (as
 each fit states them), the lobe fit's time, the table's near-mirror floor (the error no
 setup of isotropic closures can go below, ``lobes.near_mirror_floor``) and the best error of
-any view-dependent mix of Blender's closure shapes (``node_bound``). Prints a markdown table
-and a summary."""
+any view-dependent mix of Blender's closure shapes (``node_bound``), and the lobes' error over
+it. Prints a markdown table and a summary.
+
+``--reuse FILE``: the bound, floor and Principled figures of tables already measured (JSON lines
+with name, edit, bound, floor, p_error, p_albedo; ``--write FILE`` writes them) are read, not
+computed again: they do not depend on the lobe fit, and node_bound takes most of the run."""
 
 from __future__ import annotations
 
@@ -21,8 +25,8 @@ QUICK = ("rgl/paper_blue", "rgl/cm_white", "rgl/satin_gold", "rgl/ilm_l3_37_meta
 def edited_tables(table):
     """(label, table) for the table and its three edits (an edit that fails is reported)."""
     from ..core.edit import EditTargets, edit
-    from ..core.fits import fit_material
-    from ..core.profiles import compute_profiles
+    from ..core.fits.curves import fit_material
+    from ..core.profiles.compute import compute_profiles
 
     prof = compute_profiles(table)
     fit = fit_material(prof)
@@ -38,20 +42,29 @@ def edited_tables(table):
             yield label, exc
 
 
-def bench_nodes(names, principled=True, out=print):
+def bench_nodes(names, principled=True, out=print, reuse=None, write=None):
+    import json
+
     import samples
 
-    from ..core.lobes import fit_lobes, near_mirror_floor
-    from ..core.merl import read_merl
-    from ..core.node_bound import node_bound
-    from ..core.principled import fit_principled
+    from ..core.file.merl import read_merl
+    from ..core.material.lobes import fit_lobes, near_mirror_floor
+    from ..core.material.node_bound import node_bound
+    from ..core.material.principled import fit_principled
 
+    known = {}
+    if reuse:
+        with open(reuse) as fh:
+            for line in fh:
+                d = json.loads(line)
+                known[(d["name"], d["edit"])] = d
+    sink = open(write, "a") if write else None
     out(
-        "| material | edit | lobes: BRDF error | lobes: albedo error | Principled: BRDF | Principled: albedo "
-        "| near-mirror floor | best any closures | fit time |"
+        "| material | edit | lobes: BRDF error | best any closures | lobes over it | lobes: albedo error "
+        "| lobes | Principled: BRDF | Principled: albedo | near-mirror floor | fit time |"
     )
-    out("|---|---|---|---|---|---|---|---|---|")
-    errs, albs, times, perrs, palbs, floors, bounds = [], [], [], [], [], [], []
+    out("|---|---|---|---|---|---|---|---|---|---|---|")
+    errs, albs, times, perrs, palbs, floors, bounds, autos = [], [], [], [], [], [], [], []
     for name in names:
         table = read_merl(samples.sample_path(name))
         for label, t in edited_tables(table):
@@ -61,24 +74,41 @@ def bench_nodes(names, principled=True, out=print):
             t0 = time.perf_counter()
             f = fit_lobes(t)
             took = time.perf_counter() - t0
-            p = fit_principled(t) if principled else None
-            floors.append(near_mirror_floor(t))
-            bounds.append(node_bound(t))
+            d = known.get((name, label))
+            if d is None:
+                p = fit_principled(t) if principled else None
+                d = dict(name=name, edit=label, bound=node_bound(t), floor=near_mirror_floor(t))
+                d.update(p_error=p.error, p_albedo=p.albedo_error) if p is not None else None
+                if sink is not None:
+                    sink.write(json.dumps(d) + "\n")
+                    sink.flush()
+            floors.append(d["floor"])
+            bounds.append(d["bound"])
             errs.append(f.error)
             albs.append(f.albedo_error)
             times.append(took)
             pe = pa = ""
-            if p is not None:
-                perrs.append(p.error)
-                palbs.append(p.albedo_error)
-                pe, pa = f"{p.error:.1%}", f"{p.albedo_error:.1%}"
+            if principled and d.get("p_error") is not None:
+                perrs.append(d["p_error"])
+                palbs.append(d["p_albedo"])
+                pe, pa = f"{d['p_error']:.1%}", f"{d['p_albedo']:.1%}"
+                autos.append(min(f.error, d["p_error"]))  # Auto: the closer in BRDF error
+            gap = 100.0 * (f.error - bounds[-1])
             out(
-                f"| {name} | {label} | {f.error:.1%} | {f.albedo_error:.1%} | {pe} | {pa} | {floors[-1]:.1%} "
-                f"| {bounds[-1]:.1%} | {took:.2f} s |"
+                f"| {name} | {label} | {f.error:.1%} | {bounds[-1]:.1%} | {gap:+.1f} | {f.albedo_error:.1%} "
+                f"| {f.describe()} | {pe} | {pa} | {floors[-1]:.1%} | {took:.2f} s |"
             )
             sys.stdout.flush()
     e, a = np.array(errs), np.array(albs)
+    g = e - np.array(bounds)
     out("")
+    out(
+        f"Lobes over their tables' node_bound: median {100 * np.median(g):+.1f} points, worst {100 * g.max():+.1f}; "
+        f"within 5 points on {int(np.sum(g <= 0.05))} of {len(g)} tables; BRDF error at most 10 %: "
+        f"{int(np.sum(e <= 0.10))}."
+    )
+    if autos:
+        out(f"Auto (the closer of lobes and Principled in BRDF error): median {np.median(autos):.1%}.")
     out(
         f"Lobes over {len(e)} tables: BRDF error median {np.median(e):.1%}, 90th percentile "
         f"{np.percentile(e, 90):.1%}, worst {e.max():.1%}; albedo error median {np.median(a):.1%}, worst "
@@ -107,6 +137,15 @@ def main(argv):
     (``bench_artist.bench_nodes_render``, needs Blender)."""
     import samples
 
+    def option(name):
+        if name in argv:
+            i = argv.index(name)
+            value = argv[i + 1]
+            del argv[i : i + 2]
+            return value
+        return None
+
+    reuse, write = option("--reuse"), option("--write")
     if "--render" in argv:
         names = [a for a in argv if not a.startswith("--")]
         from .bench_artist import RENDER_NAMES, bench_nodes_render
@@ -117,7 +156,7 @@ def main(argv):
     names = [a for a in argv if not a.startswith("--")]
     if not names:
         names = list(QUICK) if quick else samples.measured_names()
-    bench_nodes(names, principled="--no-principled" not in argv)
+    bench_nodes(names, principled="--no-principled" not in argv, reuse=reuse, write=write)
 
 
 if __name__ == "__main__":

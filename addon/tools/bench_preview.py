@@ -28,7 +28,7 @@ EDIT = dict(sigma2_scale=2.0, strength=0.8)
 
 
 def _cache_dir():
-    from ..core.integrate import default_cache_dir
+    from ..core.profiles.integrate import default_cache_dir
 
     path = os.path.join(default_cache_dir(), "preview")
     os.makedirs(path, exist_ok=True)
@@ -53,9 +53,9 @@ def edited_table(table, name):
     """The demo's model-mode edit of ``table`` (cached as a MERL file by content and code)."""
     from ..core import edit as edit_mod
     from ..core.edit import EditTargets, edit
-    from ..core.fits import fit_material
-    from ..core.merl import read_merl, write_merl
-    from ..core.profiles import compute_profiles
+    from ..core.file.merl import read_merl, write_merl
+    from ..core.fits.curves import fit_material
+    from ..core.profiles.compute import compute_profiles
 
     h = hashlib.sha256(np.ascontiguousarray(table.rho).tobytes())
     h.update(repr(sorted(EDIT.items())).encode() + _source_hash(edit_mod).encode())
@@ -86,7 +86,7 @@ def _environment(bpy):
 
     import OpenEXR
 
-    from ..core.render import Environment
+    from ..core.preview import Environment
 
     hits = glob.glob(
         os.path.join(os.path.dirname(np.__file__), "..", "bpy", "*", "datafiles", "studiolights", "world", f"{ENV}.exr")
@@ -101,7 +101,7 @@ def reference_version():
     to the bake must not throw away four-minute ground truths)."""
     import inspect
 
-    from ..core.render import envmap, estimators, lobe, scene
+    from ..core.preview import envmap, estimators, lobe, scene
 
     h = hashlib.sha256(b"reference")
     for fn in (
@@ -117,7 +117,7 @@ def reference_version():
 
 def ground_truth(layout, brdfs, env, tag, spp=GT_SPP):
     """(image, estimated relative RMSE of its own noise, seconds spent or 0 if cached)."""
-    from ..core.render import relative_rmse, render_reference
+    from ..core.preview import relative_rmse, render_reference
 
     h = hashlib.sha256(f"gt:{spp}:{layout}:{reference_version()}".encode())
     for b in brdfs:
@@ -160,8 +160,8 @@ def _read_exr(bpy, path):
 def bench_preview(quick=False):
     import samples
 
-    from ..core.merl import read_merl
-    from ..core.render import (
+    from ..core.file.merl import read_merl
+    from ..core.preview import (
         BakeCache,
         ModelBRDF,
         TableBRDF,
@@ -360,8 +360,8 @@ def render_default_error(names=("ggx_glossy", "ggx_mirror"), extra=(("--path", "
 
     import samples
 
-    from ..core.merl import read_merl, write_merl
-    from ..core.render import TableBRDF, normalized_rmse, relative_rmse, sphere_layout
+    from ..core.file.merl import read_merl, write_merl
+    from ..core.preview import TableBRDF, normalized_rmse, relative_rmse, sphere_layout
     from ..wheel import import_bpy
 
     bpy = import_bpy()

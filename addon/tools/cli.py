@@ -10,7 +10,7 @@ import math
 import os
 import sys
 
-# render's default: the baked path at the panel's bake (core.render.live.FINAL_SAMPLES), and
+# render's default: the baked path at the panel's bake (core.preview.live.FINAL_SAMPLES), and
 # what it measured against the converged reference (bench_preview.render_default_error; the
 # figures and the command are in BENCHMARKS.md).
 RENDER_BAKE_SAMPLES = 128
@@ -33,8 +33,8 @@ class _Parser(argparse.ArgumentParser):
 
 def _guard(out, *inputs):
     """Refuse a bad destination before any work (atomic_path checks again when writing)."""
-    from ..core.safeio import guard_output
-    from ..core.sources import parse_source
+    from ..core.file.safeio import guard_output
+    from ..core.file.sources import parse_source
 
     # FILE:NAME (a material of a weights set) reads FILE: that is the input to protect.
     return guard_output(out, [parse_source(p)[0] for p in inputs if p])
@@ -65,8 +65,8 @@ def _progress(label, always=False):
 
 def _single_materials(specs):
     """A weights set named with no material is an error for commands that take materials one by one."""
-    from ..core.nbrdf import load_network
-    from ..core.sources import is_weights_source, parse_source
+    from ..core.file.nbrdf import load_network
+    from ..core.file.sources import is_weights_source, parse_source
 
     for spec in specs:
         path, name = parse_source(spec)
@@ -75,10 +75,10 @@ def _single_materials(specs):
 
 
 def cmd_profiles(args):
-    from ..core.atomic import write_json_atomic
-    from ..core.integrate import default_views
-    from ..core.nbrdf import read_table
-    from ..core.profiles import compute_profiles
+    from ..core.file.atomic import write_json_atomic
+    from ..core.file.nbrdf import read_table
+    from ..core.profiles.compute import compute_profiles
+    from ..core.profiles.integrate import default_views
 
     _guard(args.out, args.file)
     if args.plot:
@@ -107,8 +107,8 @@ def cmd_profiles(args):
 
 
 def cmd_fit(args):
-    from ..core.atomic import write_json_atomic
-    from ..core.fits import fit_set
+    from ..core.file.atomic import write_json_atomic
+    from ..core.fits.curves import fit_set
     from .analyze import collect_inputs, input_names, load_profiles
 
     _single_materials(args.files)
@@ -246,7 +246,7 @@ def _check_written(path, res, prof):
     analysis): what anyone loading it will see, printed beside what was announced."""
     from ..core.edit.fidelity import against_announcement
     from ..core.edit.scale import measure
-    from ..core.merl import read_merl
+    from ..core.file.merl import read_merl
 
     got_prof, got_fit = measure(read_merl(path), prof.theta_o, prof.split)
     got_prof.name = prof.name
@@ -261,9 +261,9 @@ def _check_written(path, res, prof):
 
 def cmd_edit(args):
     from ..core.edit import EditTargets, edit
-    from ..core.merl import write_merl
-    from ..core.nbrdf import read_table
-    from ..core.sources import parse_source
+    from ..core.file.merl import write_merl
+    from ..core.file.nbrdf import read_table
+    from ..core.file.sources import parse_source
 
     _guard(args.out, args.file)
     if args.report:
@@ -271,8 +271,8 @@ def cmd_edit(args):
     if args.plot:
         _guard(args.plot, args.file, args.out, *([args.report] if args.report else []))
     table = read_table(args.file)
-    from ..core.fits import fit_material
-    from ..core.profiles import compute_profiles
+    from ..core.fits.curves import fit_material
+    from ..core.profiles.compute import compute_profiles
 
     prof = compute_profiles(table, floor=args.floor)  # the edit keeps this kd; the report compares with it
     fit = fit_material(prof)
@@ -300,8 +300,8 @@ def cmd_edit(args):
             sys.stderr.write("\n")  # an error cut the rounds short: end the bar's line before it
     write_merl(res.table, args.out, source=parse_source(args.file)[0])
     if args.report:
-        from ..core.atomic import write_json_atomic
         from ..core.edit.fidelity import report
+        from ..core.file.atomic import write_json_atomic
 
         write_json_atomic(report(res, prof, table), args.report, (args.file,))
     said = lambda v, fmt: "—" if v is None else format(v, fmt)  # noqa: E731
@@ -564,8 +564,8 @@ def build_parser():
 
 
 def main(argv=None):
-    from ..core.merl import MerlError
-    from ..core.safeio import display_path, run_scope
+    from ..core.file.merl import MerlError
+    from ..core.file.safeio import display_path, run_scope
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -21,7 +21,7 @@ def _figure(nrows, ncols, size):
 
 def save_figure(fig, path, dpi=110):
     """Save atomically so a failed plot never leaves a broken PNG."""
-    from ..core.atomic import atomic_path
+    from ..core.file.atomic import atomic_path
 
     with atomic_path(path, ".png") as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")
@@ -215,7 +215,7 @@ def plot_set_profiles(profiles, folder, channel="avg"):
 def plot_fits(profiles, fits, path, channel="avg"):
     """Figure 6: measured and fitted profiles (energy, mean, average variance), their errors,
     and insets with the best, an intermediate and the worst fit by RMSE."""
-    from ..core.fits import energy_curve
+    from ..core.fits.curves import energy_curve
 
     colours = material_colours(list(profiles))
     names = [n for n in sorted(profiles) if fits[n]["energy"]["rmse"] is not None]
@@ -290,7 +290,7 @@ def plot_fits(profiles, fits, path, channel="avg"):
 
 def plot_energy_spline(profiles, fits, joint, path, channel="avg"):
     """Figure 7a: energy profiles normalised by alpha_b, the fitted splines and the knots."""
-    from ..core.fits import energy_curve
+    from ..core.fits.curves import energy_curve
 
     colours = material_colours(list(profiles))
     plt, fig, axes = _figure(1, 1, (8.5, 5.5))
@@ -337,7 +337,7 @@ def plot_energy_spline(profiles, fits, joint, path, channel="avg"):
 
 def plot_correlation(fits, correlation, path):
     """Figure 7b: fitted mean slope against average variance, with the constrained quadratic."""
-    from ..core.fits import LAMBERT_VARIANCE, correlation_curve
+    from ..core.fits.curves import LAMBERT_VARIANCE, correlation_curve
 
     colours = material_colours(list(fits))
     plt, fig, axes = _figure(1, 1, (7.5, 5.5))
@@ -373,7 +373,7 @@ def plot_material_curves(curves, correlation, path):
     """Where roughness edits take each material in the (mu~, sigma~^2) plane: one line per
     material through its fitted point (dot), over the paper's correlation quadratic fitted to
     the same materials' own points."""
-    from ..core.fits import LAMBERT_VARIANCE, correlation_curve
+    from ..core.fits.curves import LAMBERT_VARIANCE, correlation_curve
 
     plt, fig, axes = _figure(1, 1, (8.0, 6.0))
     ax = axes[0, 0]

@@ -12,8 +12,8 @@ import time
 
 def _preflight(args, input_error):
     """Checks that need no Blender: the output's name and the guard against the inputs."""
-    from ..core.safeio import guard_output
-    from ..core.sources import parse_source
+    from ..core.file.safeio import guard_output
+    from ..core.file.sources import parse_source
 
     out = os.fspath(args.out)
     if os.path.splitext(out)[1].lower() not in (".png", ".exr"):
@@ -29,14 +29,14 @@ def run_in_child(args, input_error):
 
     Blender's render holds the interpreter until it ends (Ctrl-C was swallowed). The parent
     stays responsive: on Ctrl-C it kills the child, removes the child's temporaries (recorded
-    in the journal, see core/atomic.py) and Blender's own temporary folder, and re-raises."""
+    in the journal, see core/file/atomic.py) and Blender's own temporary folder, and re-raises."""
     import shutil
     import signal
     import subprocess
     import sys
     import tempfile
 
-    from ..core.atomic import sweep_pending
+    from ..core.file.atomic import sweep_pending
 
     _preflight(args, input_error)
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -72,7 +72,7 @@ def run_in_child(args, input_error):
 def run(args, input_error):
     import signal
 
-    from ..core.nbrdf import read_table
+    from ..core.file.nbrdf import read_table
 
     if os.environ.get("BRDF_MOMENTS_RENDER_CHILD") == "1":
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us

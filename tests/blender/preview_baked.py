@@ -22,10 +22,10 @@ import numpy as np  # noqa: E402
 
 import samples  # noqa: E402
 from addon.blender import preview  # noqa: E402
-from addon.core.merl import read_merl  # noqa: E402
-from addon.core.profiles import compute_profiles  # noqa: E402
-from addon.core.render import Environment  # noqa: E402
-from addon.core.render.scene import texel_positions  # noqa: E402
+from addon.core.file.merl import read_merl  # noqa: E402
+from addon.core.preview import Environment  # noqa: E402
+from addon.core.preview.scene import texel_positions  # noqa: E402
+from addon.core.profiles.compute import compute_profiles  # noqa: E402
 
 A, B = 1.0, 0.5
 os.makedirs(OUT, exist_ok=True)

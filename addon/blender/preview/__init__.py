@@ -1,6 +1,6 @@
 """Preview of original and edited materials on spheres in Cycles (and EEVEE): SPEC §4, Blender side.
 
-The numbers come from the bpy-free engine (``addon.core.render``); this package builds the
+The numbers come from the bpy-free engine (``addon.core.preview``); this package builds the
 scene. Import it only where ``bpy`` is available.
 
     from addon.blender.preview import build_preview, render_still

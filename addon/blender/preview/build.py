@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from ...core.merl import MerlTable, read_merl
-from ...core.render import BakeCache, ModelBRDF, MomentParams, TableBRDF, bake_key, sphere_layout
+from ...core.file.merl import MerlTable, read_merl
+from ...core.preview import BakeCache, ModelBRDF, MomentParams, TableBRDF, bake_key, sphere_layout
 from ..compat import node_tree
 from . import osl as osl_path
 from . import scene as sc
@@ -28,7 +28,7 @@ SEED = 0
 class PreviewInfo:
     path: str  # 'osl' or 'baked' (what 'auto' resolved to)
     mode: str  # OSL mode ('model' or 'tabulated'); 'tabulated' for baked
-    layout: object  # core.render.Layout
+    layout: object  # core.preview.Layout
     materials: list  # material names, left to right
     environment: str  # HDRI path
     baked: list = field(default_factory=list)  # materials (re)baked by this call
@@ -84,7 +84,7 @@ def model_params(source, profiles=None) -> MomentParams:
     """The moment model of a source: as given, or fitted to a table (Sec. 3.4 fits)."""
     if isinstance(source, MomentParams):
         return source
-    from ...core.fits import fit_material
+    from ...core.fits.curves import fit_material
 
     brdf = brdf_of(source, profiles)
     return _memo(("fit", brdf.content_key()), lambda: MomentParams.from_fit(fit_material(brdf.profiles), brdf.kd))
@@ -379,7 +379,7 @@ def render_still(scene, out_path, quiet=False, labels=None):
     """Render the scene to ``out_path``: .png display-referred (Standard view, sRGB, 8-bit RGBA),
     .exr linear scene radiance (32-bit float RGBA). Written atomically. ``quiet`` keeps
     Blender's progress lines off stdout; ``labels``: one per sphere, drawn above it."""
-    from ...core.atomic import atomic_path
+    from ...core.file.atomic import atomic_path
 
     ext = os.path.splitext(os.fspath(out_path))[1].lower()
     settings = scene.render.image_settings
@@ -415,7 +415,7 @@ def _label_file(path, labels):
     """Draw the spheres' labels into the image file at ``path`` (rewritten in its own format)."""
     import numpy as np
 
-    from ...core.render import sphere_layout
+    from ...core.preview import sphere_layout
     from ..images import label_image
 
     img = bpy.data.images.load(path, check_existing=False)

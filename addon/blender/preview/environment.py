@@ -13,7 +13,7 @@ import os
 import bpy
 import numpy as np
 
-from ...core.render import Environment
+from ...core.preview import Environment
 
 DEFAULT = "studio"
 EXTENSIONS = (".exr", ".hdr")
@@ -71,8 +71,8 @@ _LOADED = {}
 
 def load_environment(path) -> Environment:
     """The map at ``path`` as an engine Environment (cached per file and modification time)."""
-    from ...core.render.envmap import check_radiance
-    from ...core.safeio import check_image_header, register_input
+    from ...core.file.safeio import check_image_header, register_input
+    from ...core.preview.envmap import check_radiance
 
     path = os.path.abspath(os.fspath(path))
     st = os.stat(path)
@@ -105,7 +105,7 @@ def load_environment(path) -> Environment:
 
 def write_environment(pixels, path):
     """Write an (H, W, 3) top-row-first array as a float EXR through bpy (tests, constant worlds)."""
-    from ...core.atomic import atomic_path
+    from ...core.file.atomic import atomic_path
 
     a = np.asarray(pixels, np.float32)
     h, w = a.shape[:2]

@@ -15,7 +15,7 @@ import os
 import bpy
 import numpy as np
 
-from ...core.fits import LAMBERT_VARIANCE, MIN_SIGMA2
+from ...core.fits.curves import LAMBERT_VARIANCE, MIN_SIGMA2
 from ...core.limits import MAX_SHADER_SOURCE_BYTES
 
 SHADER_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "shaders")
@@ -41,7 +41,7 @@ def osl_available() -> tuple:
 
 
 def cache_dir() -> str:
-    from ...core.integrate import default_cache_dir
+    from ...core.profiles.integrate import default_cache_dir
 
     return os.path.join(default_cache_dir(), "preview")
 
@@ -51,8 +51,8 @@ def compile_shader(name: str, folder=None) -> str:
     import _cycles
 
     src = os.path.join(SHADER_DIR, name + ".osl")
-    from ...core.cachefs import verified, write_seal
-    from ...core.safeio import read_input
+    from ...core.file.cachefs import verified, write_seal
+    from ...core.file.safeio import read_input
 
     h = hashlib.sha256()
     for part in sorted(os.listdir(SHADER_DIR)):
@@ -61,7 +61,7 @@ def compile_shader(name: str, folder=None) -> str:
                 part.encode()
                 + read_input(os.path.join(SHADER_DIR, part), MAX_SHADER_SOURCE_BYTES, "shader source", register=False)
             )
-    from ...core.atomic import atomic_path, own_folder
+    from ...core.file.atomic import atomic_path, own_folder
 
     folder = own_folder(folder or cache_dir())
     dst = os.path.join(folder, f"{name}-{h.hexdigest()[:12]}.oso")
@@ -151,7 +151,7 @@ def table_texture_pixels(values, kd):
     """(810, 1800, 3) float32, top row first: max(rho - kd, 0) of each cell in the shader's layout.
 
     ``values`` is (N_CELLS, 3) (missing cells already at kd, see TableBRDF)."""
-    from ...core.merl import RES_PD, RES_TD, RES_TH
+    from ...core.file.merl import RES_PD, RES_TD, RES_TH
 
     spec = np.maximum(np.asarray(values, np.float32) - np.asarray(kd, np.float32)[None, :], 0.0)
     cube = spec.reshape(RES_TH, RES_TD // 10, 10, RES_PD, 3)  # (ith, itd // 10, itd % 10, ipd, c)
@@ -165,7 +165,7 @@ def write_table_texture(brdf, folder=None) -> str:
     import glob
     import secrets
 
-    from ...core import cachefs
+    from ...core.file import cachefs
     from ...core.limits import TABLE_TEXTURE_MAX_BYTES, TABLE_TEXTURE_MAX_ENTRIES
     from .environment import write_environment
 

@@ -1,6 +1,6 @@
 """The preview scene in Blender: camera, a row of spheres, the world, render settings.
 
-Mirrors ``addon.core.render.scene``: an orthographic camera looking along +y, unit spheres at
+Mirrors ``addon.core.preview.scene``: an orthographic camera looking along +y, unit spheres at
 z = 0 placed so each covers a pixel-aligned square of ``layout.diameter`` pixels. Spheres are
 seen by camera rays only (no shadows or reflections of each other): the numpy reference
 renders them the same way.

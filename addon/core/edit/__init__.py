@@ -9,7 +9,8 @@ A variance or mean-slope move in warp mode is a roughness edit; modules in the o
   reciprocal per-view transform of ``reciprocal``), the announcement measured on the table, the
   region; energy-only edits; model mode (the paper's sketch) through ``targets`` and ``reach``.
 - ``fidelity``: the measuring stick, every view of a table against what was announced; the report.
-The truncated-Gaussian solver shared with the preview and OSL is ``core.truncated``.
+- ``blas``: BLAS on one thread around the solve's many tiny products.
+The truncated-Gaussian solver shared with the preview and OSL is ``core.fits.truncated``.
 """
 
 from .reach import ReachableRegion, reachable_region

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..profiles import Profiles, compute_profiles
+from ..profiles.compute import Profiles, compute_profiles
 from .reach import counted_views, view_reachable
 from .targets import RGB, ViewTargets
 
@@ -188,8 +188,8 @@ def far_energy(edited, source, targets: ViewTargets, original: Profiles) -> np.n
     measured widths: energy the edit moved far from the lobe (SPEC §3's shape rule), the worst of
     r, g, b (a colour edit moves nothing in any channel). Each cell part's centroid (the
     operator's) places it; the width is the channel's average variance (target, or measured)."""
-    from ..integrate import get_operator
-    from ..profiles import specular_part
+    from ..profiles.compute import specular_part
+    from ..profiles.integrate import get_operator
 
     theta = np.asarray(targets.theta_o, float)
     op = get_operator(theta)
@@ -304,7 +304,7 @@ def _target_shape(vt: ViewTargets, original: Profiles):
             (vt.shape["skew_30"], np.asarray(p["skew_30"], float)),
             (vt.shape["kurt_40"], np.asarray(p["kurt_40"], float)),
         )
-    from .. import truncated
+    from ..fits import truncated
 
     centre, width, _ = truncated.solve(vt.avg_mean, vt.avg_var)
     _, c2, c3, c4, _ = truncated.z_moments(centre, width)

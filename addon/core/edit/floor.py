@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from ..microsurface import FORMS
 from . import microfacet as M
 
 # The search reads every 3rd theta_d row (row 0, the back-scattering one, included) and every
@@ -27,7 +28,7 @@ SEARCH_STEPS = 20  # then golden-section steps around the best two grid steps: t
 GOLD = (math.sqrt(5.0) - 1.0) / 2.0
 
 
-def floor_misfit(rho_c, valid_c, kd_c, sub=SUBSET, forms=M.FORMS):
+def floor_misfit(rho_c, valid_c, kd_c, sub=SUBSET, forms=FORMS):
     """The misfit of one channel's rho - kd_c against its microfacet reading, in absolute terms
     (sum of cos_i cos_o (rho - kd - reading)^2), and the masking form read (inf, None: no lobe).
     Absolute, not relative to the lobe's own energy: a floor left in the lobe adds energy the

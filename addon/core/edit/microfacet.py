@@ -8,7 +8,7 @@ D <- b A(D)^2, normalised by the area toward the normal (int D cos theta_m dw = 
 A(n)); Dupuy et al. 2015. Masking follows from D through Smith: G1(v) = cos_v / A(v).
 
 Everything the edit needs is in one per-cell quantity, the masking denominator
-``gden = 4 cos_i cos_o / G``: separable G gives 4 A_i A_o, height-correlated G = 1/(1 + L_i + L_o)
+``gden = 4 cos_i cos_o / G`` (``core.microsurface.masking_denominator``): separable G gives 4 A_i A_o, height-correlated G = 1/(1 + L_i + L_o)
 (L = A / cos - 1) gives 4 (A_i cos_o + A_o cos_i - cos_i cos_o). Both stay finite at the horizon,
 where G / cos does not. The reading of a cell is then F(theta_d) D(theta_h) / gden.
 """
@@ -20,10 +20,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..merl import N_CELLS, RES_PD, RES_TD, RES_TH
+from ..file.merl import N_CELLS, RES_PD, RES_TD, RES_TH
+from ..microsurface import FORMS
+from ..microsurface import masking_denominator as gden
 
 HALF_PI = 0.5 * math.pi
-FORMS = ("separable", "correlated")
 N_AREA = 512  # the projected area is tabulated on this many view angles in [0, pi/2]
 N_FINE = 4096  # the NDF's sub-samples (uniform in the table's theta_h index) for that integral
 FIXED_POINT_STEPS = 15  # Dupuy et al. report 5-15; the GGX tables here settle to 1e-9 by 12
@@ -117,15 +118,6 @@ class ProjectedArea:
 def projected_area(d_centres) -> ProjectedArea:
     theta_v, K = area_kernel()
     return ProjectedArea(theta_v, K @ np.asarray(d_centres, float))
-
-
-def gden(cos_i, cos_o, area_i, area_o, form: str):
-    """4 cos_i cos_o / G: the masking denominator of a cell (see the module's docstring)."""
-    if form == "separable":
-        return 4.0 * area_i * area_o
-    if form == "correlated":
-        return 4.0 * (area_i * cos_o + area_o * cos_i - cos_i * cos_o)
-    raise ValueError(f"unknown masking form {form!r}")
 
 
 def ndf_from_backscatter(b, form: str, steps: int = FIXED_POINT_STEPS):

@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..fits import LAMBERT_VARIANCE
+from ..fits.curves import LAMBERT_VARIANCE
+from ..fits.truncated import variance_cap_fast as variance_cap
 from ..geometry import HALF_PI
-from ..truncated import variance_cap_fast as variance_cap
 
 MAX_SHIFT_SIGMAS = 1.0
 MIN_REACHABLE = 0.9

@@ -29,10 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..file.merl import RES_PD, RES_TD, RES_TH, MerlTable, cell_centres
 from ..geometry import directions_from_half_diff
-from ..integrate import SliceOperator
-from ..merl import RES_PD, RES_TD, RES_TH, MerlTable, cell_centres
-from ..profiles import specular_part
+from ..profiles.compute import specular_part
+from ..profiles.integrate import SliceOperator
 
 # Operator columns used by the solve: 1, x, phi, x^2, phi^2 (exponents(4) order: 0, 1, 2, 3, 5).
 _COLS = (0, 1, 2, 3, 5)

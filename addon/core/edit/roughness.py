@@ -39,9 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..integrate import default_views, directional_albedo, get_operator
+from ..file.merl import RES_PD, RES_TD, RES_TH, MerlTable
 from ..limits import ROUGHNESS_RANGE
-from ..merl import RES_PD, RES_TD, RES_TH, MerlTable
+from ..profiles.integrate import default_views, directional_albedo, get_operator
 from .floor import joint_floor
 from .microfacet import (
     HALF_PI,

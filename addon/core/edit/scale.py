@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fits import fit_material
-from ..profiles import compute_profiles
+from ..fits.curves import fit_material
+from ..profiles.compute import compute_profiles
 from .reciprocal import Superseded
 from .roughness import S_RANGE, Source, prepare, scale_roughness
 

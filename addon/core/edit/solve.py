@@ -12,12 +12,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..blas import one_thread
-from ..fits import LAMBERT_VARIANCE, fit_material
-from ..integrate import directional_albedo, get_operator
-from ..merl import RES_TD, MerlTable
-from ..profiles import Profiles, compute_profiles
+from ..file.merl import RES_TD, MerlTable
+from ..fits.curves import LAMBERT_VARIANCE, fit_material
+from ..limits import TARGET_FIELDS, check_targets
+from ..profiles.compute import Profiles, compute_profiles
+from ..profiles.integrate import directional_albedo, get_operator
 from . import reciprocal as R
+from .blas import one_thread
 from .fidelity import Fidelity, measure
 from .reach import ReachableRegion, reachable_region
 from .scale import roughness_source, source_key
@@ -364,6 +365,7 @@ def edit(
     from the same inputs instead of solving again (the live preview's, for Apply). ``stop()``:
     asked between the synthesis's steps; True gives the edit up (``Superseded``), so that work
     nobody will see does not hold a core."""
+    check_targets(targets, TARGET_FIELDS)  # before any work: what the command line and the panel refuse
     if prof is None:
         prof = compute_profiles(table)
     if fit is None:

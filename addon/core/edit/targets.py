@@ -11,10 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import truncated
-from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, correlation_curve, energy_curve, fit_mean_slope, fit_variance
+from ..fits import truncated
+from ..fits.curves import LAMBERT_VARIANCE, MIN_SIGMA2, correlation_curve, energy_curve, fit_mean_slope, fit_variance
 from ..limits import TARGET_FIELDS, check_targets
-from ..profiles import Profiles
+from ..profiles.compute import Profiles
 
 MODES = ("warp", "model")
 RGB = ("r", "g", "b")

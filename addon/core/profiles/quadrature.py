@@ -20,7 +20,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .geometry import HALF_PI, view_centred_angles
+from ..geometry import HALF_PI, view_centred_angles
 
 RES_TH, RES_TD, RES_PD = 90, 90, 180
 
@@ -180,6 +180,19 @@ def _fade(u, ua, ub):
     return 1.0 - t * t * t * (t * (6.0 * t - 15.0) + 10.0)
 
 
+# Each count and angle of a rule, and its declared range (core.limits.RANGES).
+_RULE_RANGES = {
+    "n_phi": "rule_lines",
+    "n_panels": "rule_lines",
+    "n_panels_phi": "rule_lines",
+    "n_gauss": "gauss_nodes",
+    "n_gauss_far": "gauss_nodes",
+    "n_probe": "rule_probes",
+    "fade_from": "fade_angle",
+    "fade_to": "fade_angle",
+}
+
+
 @dataclass(frozen=True)
 class RuleParams:
     """Resolution of the hybrid slice rule (defaults chosen by the benchmark)."""
@@ -202,6 +215,14 @@ class RuleParams:
     # How the operator reads the table at the rule's nodes: the nearest cell (MERL's own
     # reader), or trilinear between the 8 cells around each node (integrate._build_view).
     interp: str = "nearest"
+
+    def __post_init__(self):
+        from ..limits import check
+
+        for name, entry in _RULE_RANGES.items():
+            object.__setattr__(self, name, check(entry, getattr(self, name), name))
+        if not self.fade_from < self.fade_to:
+            raise ValueError(f"fade_to: must be above fade_from ({self.fade_from:g} deg), got {self.fade_to:g}")
 
     def key(self):
         key = (
@@ -229,7 +250,7 @@ def _composite(lo, hi, panels, n_gauss):
 
 
 def _strip_cells(theta_o):
-    from .merl import cell_indices_view
+    from ..file.merl import cell_indices_view
 
     se, ce = np.sin(theta_o), np.cos(theta_o)
     return lambda theta, phi: cell_indices_view(np.asarray(theta, float), np.asarray(phi, float), se, ce)
@@ -309,7 +330,7 @@ def slice_rule(theta_o: float, params: RuleParams = RuleParams()) -> SliceRule:
 def slice_rule_parts(theta_o: float, params: RuleParams = RuleParams(), chunk: int = 360):
     """``slice_rule`` in pieces (``chunk`` rays at a time, then the strips), in the same node
     order: a grazing view has ~2 M nodes, and building them whole would dominate the peak."""
-    from .geometry import half_diff_from_directions, view_centred
+    from ..geometry import half_diff_from_directions, view_centred
 
     a, b = np.radians(params.fade_from), np.radians(params.fade_to)
     if params.exact and theta_o >= np.radians(70.0) - 1e-9:

@@ -135,12 +135,13 @@ class Environment:
         return p[idx] / omega[idx]
 
     # --- lights and the rest ------------------------------------------------------------------
-    def split(self, contrast=2.0):
+    def split(self, contrast: float = 2.0):
         """(bright, residual): the map clamped at ``contrast`` times its mean luminance (the
         residual: continuous, at most that bright, so prefiltering it is nearly unbiased) and
         the excess above the clamp (``BrightTexels``: small bright lights, sampled on their
         own; prefiltering them would smear them and lobe sampling finds them rarely).
         residual + bright = the map, texel by texel."""
+        contrast = check("contrast", contrast, "contrast")
         if self._split is None:
             lum = (self.flat @ np.array([0.2126, 0.7152, 0.0722], np.float32)).astype(float)
             omega = np.repeat(self.row_omega, self.width)
@@ -244,7 +245,7 @@ class Environment:
         power = np.concatenate([self.flat[bright] * omega[bright, None], coarse.reshape(-1, 3)])
         self._irr = (dirs.astype(np.float32), power.astype(np.float32))
 
-    def irradiance_map(self, diameter):
+    def irradiance_map(self, diameter: int):
         """E at the normal of each texel centre of a sphere bake, (D, D, 3), rows top first.
 
         Material independent, so it is computed once per map and resolution (texel centres
@@ -259,8 +260,9 @@ class Environment:
             self._irr_maps[d] = self.irradiance(n).reshape(d, d, 3)
         return self._irr_maps[d]
 
-    def irradiance(self, normals, chunk=64):
+    def irradiance(self, normals, chunk: int = 64):
         """E(n) per normal, (n, 3): the cosine-weighted integral of the map."""
+        chunk = check("chunk", chunk, "chunk")
         if self._irr is None:
             self._build_irradiance()
         dirs, power = self._irr

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..microsurface import masking, ndf, smith_lambda, tan2
+
 DIELECTRIC_MAX = 0.08  # Blender 3.x's "Specular" = 1 is F0 0.08; Blender 4 reaches it through the IOR
 VIEWS_DEG = tuple(range(0, 81, 5))
 N_PHI_H = 24
@@ -65,19 +67,15 @@ class PrincipledFit:
 
 def _lobe_terms(alpha, wi, wo):
     """GGX lobe D G1 G1 / (4 cos cos) and the Schlick weight (1 - wi.h)^5 at ``alpha``."""
-    a2 = max(alpha, 1e-7) ** 2
+    alpha = max(alpha, 1e-7)
     h = wi + wo
     h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-    ch = np.clip(h[..., 2], 0.0, 1.0)
-    d = a2 / (np.pi * ((a2 - 1.0) * ch * ch + 1.0) ** 2)
     ci = np.clip(wi[..., 2], 1e-9, 1.0)
     co = np.clip(wo[..., 2], 1e-9, 1.0)
-
-    def g1(c):
-        return 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - c * c) / (c * c)))
-
+    a2 = alpha * alpha
+    g = masking(smith_lambda("ggx", a2 * tan2(ci)), smith_lambda("ggx", a2 * tan2(co)), "separable")
     sch = (1.0 - np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)) ** 5
-    return d * g1(ci) * g1(co) / (4.0 * ci * co), sch
+    return ndf("ggx", np.clip(h[..., 2], 0.0, 1.0), alpha) * g / (4.0 * ci * co), sch
 
 
 def principled_brdf(fit, wi, wo):
@@ -91,7 +89,7 @@ def principled_brdf(fit, wi, wo):
 def view_quadrature(views_deg, n_phi=N_PHI_H):
     """Per view: (wi (n, 3), wo (3,), weights cos(theta_i) d omega_i), through the half vector,
     one point per theta_h cell of the table (its square-root spacing resolves narrow peaks)."""
-    from .merl import theta_h_edges
+    from ..file.merl import theta_h_edges
 
     edges = theta_h_edges()
     th, dth = 0.5 * (edges[:-1] + edges[1:]), np.diff(edges)
@@ -189,7 +187,7 @@ def fit_principled(table) -> PrincipledFit:
     roughness, and for each roughness the other inputs in closed form."""
     from scipy.optimize import minimize_scalar
 
-    from .merl import lookup
+    from ..file.merl import lookup
 
     wi, wo, w, sizes = _quadrature()
     rho, valid = lookup(table, wi, wo)

@@ -19,8 +19,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import ndtr, ndtri
 
-from .. import truncated as _truncated
-from ..fits import LAMBERT_VARIANCE, MIN_SIGMA2, energy_curve
+from ..fits import truncated as _truncated
+from ..fits.curves import LAMBERT_VARIANCE, MIN_SIGMA2, energy_curve
 from ..geometry import HALF_PI
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
@@ -32,7 +32,7 @@ MAX_S = _truncated.MAX_S
 # --- truncated Gaussians on [-pi/2, pi/2] ---------------------------------------------------
 
 
-# The truncated Gaussian's mass and its tail-safe bounds are the one solver's (core.truncated).
+# The truncated Gaussian's mass and its tail-safe bounds are the one solver's (core.fits.truncated).
 _oriented = _truncated._oriented
 truncnorm_mass = _truncated.mass
 
@@ -58,10 +58,10 @@ def truncnorm_sample(m, s, u):
     return np.clip(x, -HALF_PI, HALF_PI)
 
 
-def truncated_params(mean, var, iters=40):
+def truncated_params(mean, var, iters: int = 40):
     """(m, s) of the Gaussian whose truncation to [-pi/2, pi/2] has this mean and variance,
-    by the one rule of ``core.truncated`` (the mean kept, the variance capped where no truncated
-    Gaussian reaches it). The OSL shaders run the same iteration."""
+    by the one rule of ``core.fits.truncated`` (the mean kept, the variance capped where no truncated
+    Gaussian reaches it). The OSL shaders run the same iteration. ``iters`` is checked there."""
     m, s, _ = _truncated.solve(mean, var, iters)
     return m, s
 
@@ -159,7 +159,12 @@ class MomentParams:
         )
 
     def edited(
-        self, strength=1.0, colour=(1.0, 1.0, 1.0), grazing_boost=1.0, mu_slope=None, sigma2=None
+        self,
+        strength: float = 1.0,
+        colour=(1.0, 1.0, 1.0),
+        grazing_boost: float = 1.0,
+        mu_slope: float | None = None,
+        sigma2: float | None = None,
     ) -> "MomentParams":
         """The sliders applied to the model, exactly as the editing engine defines the energy:
         alpha' = strength colour (alpha_b + boost (alpha - alpha_b)). The Hermite curve is
@@ -238,11 +243,11 @@ class TableBRDF:
     kind = "table"
 
     def __init__(self, table, profiles=None, kd=None):
-        from ..merl import N_CELLS
+        from ..file.merl import N_CELLS
 
         self.table = table
         if profiles is None:
-            from ..profiles import compute_profiles
+            from ..profiles.compute import compute_profiles
 
             profiles = compute_profiles(table, max_order=2)
         self.profiles = profiles
@@ -268,7 +273,7 @@ class TableBRDF:
         return self._key
 
     def evaluate(self, theta, phi, theta_o):
-        from ..merl import cell_indices_view
+        from ..file.merl import cell_indices_view
 
         to = np.asarray(theta_o, float)
         cells = cell_indices_view(theta, phi, np.sin(to), np.cos(to))
@@ -298,8 +303,16 @@ class HalfVectorSampler:
 
     FLOOR = 0.05
 
-    def __init__(self, spec_fn, n_rows=90, n_rings=90, sub=(3, 24)):
-        """``spec_fn(theta, phi, theta_o) -> (n,)``: the non-negative specular part to follow."""
+    def __init__(self, spec_fn, n_rows: int = 90, n_rings: int = 90, sub=(3, 24)):
+        """``spec_fn(theta, phi, theta_o) -> (n,)``: the non-negative specular part to follow;
+        ``n_rows`` view rows, ``n_rings`` theta_h rings, ``sub`` quadrature points per ring in
+        cos(theta_h) and in phi_h (each checked against ``limits.RANGES``)."""
+        from ..limits import check
+
+        n_rows, n_rings = check("sampler_rows", n_rows, "n_rows"), check("sampler_rings", n_rings, "n_rings")
+        if len(tuple(sub)) != 2:
+            raise ValueError(f"sub: expected two counts (in cos theta_h and in phi_h), got {sub!r}")
+        sub = tuple(check("sampler_sub", v, "sub") for v in sub)
         self.rows, self.n = n_rows, n_rings
         edges = (np.arange(n_rings + 1) / n_rings) ** 2 * HALF_PI
         self.cos_edges = np.cos(edges)

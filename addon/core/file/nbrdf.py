@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import HALF_PI
+from ..geometry import HALF_PI
 from .merl import MAX_REFLECTANCE, N_CELLS, RES_PD, RES_TD, RES_TH, MerlError, MerlTable
 from .sources import is_weights_source, parse_source
 
@@ -117,7 +117,7 @@ def _network(path, name, arrays: dict) -> Network:
 
 
 def _npz_groups(path):
-    from .limits import MAX_NBRDF_BYTES, MAX_NBRDF_MEMBERS
+    from ..limits import MAX_NBRDF_BYTES, MAX_NBRDF_MEMBERS
     from .safeio import UnsafePath, load_npz
 
     # The one input opener: a regular file within the size bound, its zip directory checked
@@ -137,7 +137,7 @@ def _npz_groups(path):
 def _read_npy(path):
     import io
 
-    from .limits import MAX_NBRDF_BYTES
+    from ..limits import MAX_NBRDF_BYTES
     from .safeio import UnsafePath, read_input
 
     try:
@@ -179,7 +179,7 @@ def _h5_groups(path):
             "reading Keras .h5 files needs the h5py package (not installed); "
             "convert with the Neural-BRDF project's h5_to_npy.py, or use an .npz",
         ) from None
-    from .limits import MAX_NBRDF_BYTES
+    from ..limits import MAX_NBRDF_BYTES
     from .safeio import UnsafePath, open_input
 
     try:  # regular file within the bound (a FIFO would hang h5py); h5py then reads it itself

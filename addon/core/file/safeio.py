@@ -24,7 +24,7 @@ import stat
 import struct
 import threading
 
-from . import limits
+from .. import limits
 
 
 def display_path(path) -> str:

@@ -23,7 +23,7 @@ measured at views between the texels, where that interpolation shows.
 
 The fit: for every texel view, the weights are non-negative least squares of the table against
 the lobes (cosine-weighted, through the half vector on the table's own theta_h cells, as
-``core.principled``), with the view's directional albedo as one extra, strongly weighted
+``core.material.principled``), with the view's directional albedo as one extra, strongly weighted
 equation, so that the energy the artist sees per view is the table's. The roughness of the
 lobes is picked greedily from a dictionary (the one that lowers the cost most, then the next),
 the cost summed over views with each view's share of a sphere's pixels.
@@ -43,10 +43,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..microsurface import DISTRIBUTIONS, masking, smith_lambda, stretched_ndf
 from .principled import pixel_share, reflect_about, view_quadrature
 
 N_VIEWS = 18  # texels of the lookup over theta_o in [0, 90°]
-N_LOBES = 3
+N_LOBES = 5  # at most; the fourth and fifth only where they lower the fit's cost by MIN_GAIN
+MIN_LOBES = 3
+MIN_GAIN = 0.03
 N_PHI_H = 24
 # Blender roughness (alpha = r²); Cycles treats alpha² <= 1e-7 as a mirror (r < 0.0178).
 DICTIONARY = tuple(float(v) for v in np.exp(np.linspace(np.log(0.02), np.log(1.0), 16)))
@@ -59,6 +62,15 @@ ALBEDO_WEIGHT = 30.0  # the albedo equation's weight against the BRDF residual's
 ASPECTS = (1.0, 1.3, 1.7, 2.2, 3.0, 4.0)
 ASPECT_RANGE = (1.0, 10.0)  # stretched across the plane only (what the dictionary holds)
 SHADOWING = ("correlated", "separable")
+# What a lobe is drawn with (``KINDS``): a Glossy BSDF of either distribution, its colour the
+# weight; or a Principled BSDF (metallic 1, base colour black, GGX) mixed in by a Mix Shader
+# whose factor is the weight: a GGX lobe times the Principled's Fresnel factor of theta_d
+# (``fresnel_factor``), grey, its weight at most 1 (the Mix Shader's factor).
+GGX, BECKMANN, FRESNEL = "ggx", "beckmann", "ggx_fresnel"
+KINDS = (GGX, BECKMANN, FRESNEL)
+FRESNEL_MAX = 1.0
+# The Principled's "Specular" in 3.x (0.5: IOR 1.5, F0 0.04), which shapes its Fresnel factor there
+PRINCIPLED_3X_SPECULAR = 0.5
 
 
 def texel_views_deg(n=N_VIEWS):
@@ -78,10 +90,35 @@ class LobeFit:
     error: float  # relative L2 error of the BRDF (cosine and pixel-share weighted, all channels)
     albedo_error: float  # largest relative error of the directional albedo over the views
     aspect: np.ndarray | None = None  # (K, N_VIEWS): each lobe's aspect q per texel (None: all 1)
+    kinds: tuple | None = None  # each lobe's closure, one of KINDS (None: all GGX Glossy)
+    bound: float | None = None  # node_bound of the table it was fitted to, when computed
+
+    def with_bound(self, bound) -> "LobeFit":
+        return LobeFit(
+            *(getattr(self, f) for f in ("roughness", "weights", "shadowing", "error", "albedo_error")),
+            self.aspect,
+            self.kinds,
+            None if bound is None else float(bound),
+        )
+
+    def describe(self) -> str:
+        """The lobes in words: "2 GGX (1 stretched), 1 Beckmann, 1 GGX × Fresnel"."""
+        parts = []
+        for kind, name in ((GGX, "GGX"), (BECKMANN, "Beckmann"), (FRESNEL, "GGX × Fresnel")):
+            ks = [k for k, v in enumerate(self.kinds) if v == kind]
+            if ks:
+                q = np.asarray(self.aspect, float)[ks]
+                n_str = int(np.sum(np.any(q != 1.0, axis=1)))
+                parts.append(f"{len(ks)} {name}" + (f" ({n_str} stretched)" if n_str else ""))
+        return ", ".join(parts) if parts else "no lobe"
 
     def __post_init__(self):
         if self.aspect is None:
             object.__setattr__(self, "aspect", np.ones((len(self.roughness), self.weights.shape[1])))
+        if self.kinds is None:
+            object.__setattr__(self, "kinds", (GGX,) * len(self.roughness))
+        if len(self.kinds) != len(self.roughness) or any(k not in KINDS for k in self.kinds):
+            raise ValueError(f"lobe kinds must be one of {KINDS} per lobe")
 
     @property
     def anisotropic(self) -> bool:
@@ -92,6 +129,8 @@ class LobeFit:
             "roughness": [float(r) for r in self.roughness],
             "weights": np.asarray(self.weights, float).round(6).tolist(),
             "aspect": np.asarray(self.aspect, float).round(6).tolist(),
+            "kinds": list(self.kinds),
+            "bound": self.bound,
             "shadowing": self.shadowing,
             "error": self.error,
             "albedo_error": self.albedo_error,
@@ -107,7 +146,15 @@ class LobeFit:
         lo, hi = ASPECT_RANGE
         if q.shape != (len(r), w.shape[1]) or not np.all(np.isfinite(q)) or np.any(q < lo) or np.any(q > hi):
             raise ValueError("lobe aspects of the wrong shape or range")
-        return cls(r, w, str(d["shadowing"]), float(d["error"]), float(d["albedo_error"]), q)
+        kinds = tuple(str(k) for k in d.get("kinds", [GGX] * len(r)))
+        if len(kinds) != len(r) or any(k not in KINDS for k in kinds):
+            raise ValueError("lobe kinds of the wrong length or unknown")
+        fres = [k == FRESNEL for k in kinds]
+        if any(fres) and (np.any(w[1:][fres] < 0.0) or np.any(w[1:][fres] > FRESNEL_MAX)):
+            raise ValueError("a Fresnel lobe's weight lies outside its Mix Shader's [0, 1]")
+        bound = d.get("bound")
+        bound = None if bound is None else float(bound)
+        return cls(r, w, str(d["shadowing"]), float(d["error"]), float(d["albedo_error"]), q, kinds, bound)
 
     @property
     def n_lobes(self) -> int:
@@ -147,22 +194,16 @@ def ggx_lobe(alpha, wi, wo, shadowing="correlated", aspect=1.0):
     return microfacet_lobe("ggx", alpha, wi, wo, shadowing, aspect)
 
 
-def _lambda(distribution, a2t2):
-    """Smith's Lambda from alpha² tan² theta of a direction (alpha along its azimuth): exact for
-    GGX; for Beckmann the rational fit Cycles uses (Walter et al. 2007)."""
-    if distribution == "ggx":
-        return 0.5 * (np.sqrt(1.0 + a2t2) - 1.0)
-    a = 1.0 / np.sqrt(np.maximum(a2t2, 1e-300))
-    return np.where(a < 1.6, (1.0 - 1.259 * a + 0.396 * a * a) / (3.535 * a + 2.181 * a * a), 0.0)
-
-
 def microfacet_lobe(distribution, alpha, wi, wo, shadowing="correlated", aspect=1.0):
     """Cycles' GGX or Beckmann reflection without Fresnel, D G / (4 cos_i cos_o), for unit
     vectors (..., 3). ``aspect`` q (scalar or per point) stretches it across the plane of
     incidence of ``wo``: alpha sqrt(q) across, alpha / sqrt(q) in it (the tangent the node setup
-    gives Cycles). The nodes use GGX; Beckmann serves ``node_bound``."""
-    if distribution not in ("ggx", "beckmann"):
+    gives Cycles). The nodes use GGX; Beckmann serves ``node_bound``. Lambda is what Cycles
+    evaluates: exact for GGX, Walter et al.'s rational fit for Beckmann."""
+    if distribution not in DISTRIBUTIONS:
         raise ValueError(f"unknown distribution {distribution!r}")
+    if shadowing not in SHADOWING:
+        raise ValueError(f"unknown shadowing {shadowing!r}")
     alpha = max(float(alpha), 1e-7)
     h = wi + wo
     h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
@@ -180,25 +221,54 @@ def microfacet_lobe(distribution, alpha, wi, wo, shadowing="correlated", aspect=
         return v[..., 0] * cx + v[..., 1] * cy, -v[..., 0] * cy + v[..., 1] * cx
 
     hx, hy = split(h)
-    hz = np.clip(h[..., 2], 0.0, 1.0)
-    if distribution == "ggx":
-        d = 1.0 / (np.pi * a_in * a_across * ((hx / a_in) ** 2 + (hy / a_across) ** 2 + hz * hz) ** 2)
-    else:  # exp(-tan² theta_h / alpha(phi_h)²) / (pi alpha_x alpha_y cos⁴ theta_h)
-        s2 = ((hx / a_in) ** 2 + (hy / a_across) ** 2) / np.maximum(hz * hz, 1e-300)
-        d = np.exp(-s2) / (np.pi * a_in * a_across * np.maximum(hz, 1e-300) ** 4)
+    d = stretched_ndf(distribution, hx, hy, h[..., 2], a_in, a_across)
 
     def lam(v, c):
         x, y = split(v)
-        return _lambda(distribution, ((a_in * x) ** 2 + (a_across * y) ** 2) / (c * c))
+        return smith_lambda(distribution, ((a_in * x) ** 2 + (a_across * y) ** 2) / (c * c), rational=True)
 
-    lam_i, lam_o = lam(wi, ci), lam(wo, co)
+    return d * masking(lam(wi, ci), lam(wo, co), shadowing) / (4.0 * ci * co)
+
+
+def fresnel_factor(wi, wo, shadowing="correlated"):
+    """The Fresnel factor of theta_d (cos theta_d = wi.h) of a Principled BSDF with metallic 1 and
+    a black base colour, in the Cycles whose Smith term is ``shadowing`` (``shadowing_for``):
+
+    - 4.x (``"correlated"``): the metal's F82-tint Fresnel with a white tint, which is Schlick's
+      F0 + (1 - F0)(1 - wi.h)^5 with F0 the base colour: (1 - wi.h)^5;
+    - 3.x (``"separable"``): Principled v1's ``interpolate_fresnel_color``, cspec0 (1 - FH) + FH
+      with cspec0 the base colour and FH = (F(wi.h) - F0) / (1 - F0), F the dielectric Fresnel of
+      the IOR its "Specular" gives (0.5: 1.5) and F0 = F(1): FH."""
+    h = wi + wo
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+    c = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
     if shadowing == "correlated":
-        g = 1.0 / (1.0 + lam_i + lam_o)
-    elif shadowing == "separable":
-        g = 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
-    else:
+        return (1.0 - c) ** 5
+    if shadowing != "separable":
         raise ValueError(f"unknown shadowing {shadowing!r}")
-    return d * g / (4.0 * ci * co)
+    ior = 2.0 / (1.0 - math.sqrt(0.08 * PRINCIPLED_3X_SPECULAR)) - 1.0
+    f0 = _fresnel_dielectric(np.array(1.0), ior)
+    return (_fresnel_dielectric(c, ior) - f0) / (1.0 - f0)
+
+
+def _fresnel_dielectric(c, eta):
+    """The unpolarised Fresnel reflectance of a dielectric of relative IOR ``eta`` at cos ``c``."""
+    g = np.sqrt(eta * eta - 1.0 + c * c)
+    a = (g - c) / (g + c)
+    b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
+    return 0.5 * a * a * (1.0 + b * b)
+
+
+def lobe_shape(kind, roughness, wi, wo, shadowing="correlated", aspect=1.0):
+    """One lobe of ``kind`` (``KINDS``) at Blender ``roughness`` (alpha = roughness²), weight 1.
+    A Fresnel lobe stays round (``aspect`` ignored)."""
+    if kind == BECKMANN:
+        return microfacet_lobe("beckmann", roughness * roughness, wi, wo, shadowing, aspect)
+    if kind == GGX:
+        return microfacet_lobe("ggx", roughness * roughness, wi, wo, shadowing, aspect)
+    if kind == FRESNEL:
+        return microfacet_lobe("ggx", roughness * roughness, wi, wo, shadowing) * fresnel_factor(wi, wo, shadowing)
+    raise ValueError(f"unknown lobe kind {kind!r}")
 
 
 def lobes_brdf(fit: LobeFit, wi, wo):
@@ -206,17 +276,17 @@ def lobes_brdf(fit: LobeFit, wi, wo):
     wi, wo = np.asarray(wi, float), np.asarray(wo, float)
     theta = np.degrees(np.arccos(np.clip(wo[:, 2], -1.0, 1.0)))
     w = fit.weights_at(theta)  # (1 + K, n, 3)
-    q = fit.aspect_at(theta)  # all 1 for round lobes: ggx_lobe's round path
+    q = fit.aspect_at(theta)  # all 1 for round lobes: the round path
     out = w[0].T / np.pi
-    for k, r in enumerate(fit.roughness):
-        out = out + w[k + 1].T * ggx_lobe(r * r, wi, wo, fit.shadowing, q[k])[None, :]
+    for k, (kind, r) in enumerate(zip(fit.kinds, fit.roughness)):
+        out = out + w[k + 1].T * lobe_shape(kind, r, wi, wo, fit.shadowing, q[k])[None, :]
     return out
 
 
 def _table_at_views(table, views_deg):
     """Per view: (deg, wi, wo, weights, rho (3, n)) on ``view_quadrature``'s directions where
     the table was measured (missing cells left out)."""
-    from .merl import lookup
+    from ..file.merl import lookup
 
     for deg, (wi, wo, w) in zip(views_deg, view_quadrature(views_deg, N_PHI_H)):
         rho, valid = lookup(table, wi, np.broadcast_to(wo, wi.shape))
@@ -224,12 +294,24 @@ def _table_at_views(table, views_deg):
         yield deg, wi[ok], wo, w[ok], rho[:, ok]
 
 
-def _features(rough, wi, wo, shadowing, aspects=(1.0,)):
-    """Diffuse, then every (roughness, aspect) pair, aspects varying fastest."""
+def _features(lobes, wi, wo, shadowing, aspects=(1.0,)):
+    """Diffuse, then every (kind, roughness) lobe at every aspect, aspects varying fastest (a
+    Fresnel lobe, always round, repeated)."""
     wo_b = np.broadcast_to(wo, wi.shape)
-    q = np.asarray(aspects, float)[:, None]  # all the aspects of one roughness in one call
+    q = np.asarray(aspects, float)[:, None]  # all the aspects of one lobe in one call
     rows = [np.full((1, len(wi)), 1.0 / np.pi)]
-    rows += [np.broadcast_to(ggx_lobe(r * r, wi, wo_b, shadowing, q), (len(q), len(wi))) for r in rough]
+    fresnel = fresnel_factor(wi, wo_b, shadowing) if any(kind == FRESNEL for kind, _ in lobes) else None
+    round_ggx = {}  # a Fresnel lobe is the round GGX lobe of its roughness times the factor
+    for kind, r in lobes:
+        if kind == FRESNEL:
+            if r not in round_ggx:
+                round_ggx[r] = lobe_shape(GGX, r, wi, wo_b, shadowing)
+            shape = round_ggx[r] * fresnel
+        else:
+            shape = lobe_shape(kind, r, wi, wo_b, shadowing, q)
+            if kind == GGX and len(q) > 0 and 1.0 in aspects:
+                round_ggx[r] = shape[list(aspects).index(1.0)] if shape.ndim == 2 else shape
+        rows.append(np.broadcast_to(shape, (len(q), len(wi))))
     return np.concatenate(rows)
 
 
@@ -239,6 +321,25 @@ def _nnls_gram(G, b):
 
     L = np.linalg.cholesky(G)
     x, _ = nnls(L.T, np.linalg.solve(L, b), maxiter=50 * len(b))
+    return x
+
+
+def _nnls_capped(G, b, capped, cap):
+    """min x.G.x - 2 x.b over x >= 0 with x <= cap where ``capped``: the largest unknown over its
+    cap held at it and the rest solved again, until none is over (exact for one capped unknown:
+    the cost minimised over the others is convex in it)."""
+    n = len(b)
+    held = np.zeros(n, bool)
+    x = np.zeros(n)
+    capped = np.asarray(capped, bool)
+    for _ in range(int(capped.sum()) + 1):
+        free = ~held
+        x[free] = _nnls_gram(G[np.ix_(free, free)], b[free] - G[np.ix_(free, held)] @ x[held])
+        over = capped & ~held & (x > cap)
+        if not over.any():
+            break
+        k = int(np.flatnonzero(over)[np.argmax(x[over])])
+        held[k], x[k] = True, cap
     return x
 
 
@@ -253,15 +354,15 @@ class _View:
         self.share = pixel_share(deg)
         self._normal_equations(dictionary, aspects)
 
-    def with_lobes(self, rough, aspects):
+    def with_lobes(self, lobes, aspects):
         other = object.__new__(_View)
         other.__dict__.update({k: self.__dict__[k] for k in ("deg", "wo", "shadowing", "wi", "w", "rho", "share")})
-        other._normal_equations(rough, aspects)
+        other._normal_equations(lobes, aspects)
         return other
 
-    def _normal_equations(self, rough, aspects):
+    def _normal_equations(self, lobes, aspects):
         wi, w, rho = self.wi, self.w, self.rho
-        F = _features(rough, wi, self.wo, self.shadowing, aspects)  # (1 + R Q, n)
+        F = _features(lobes, wi, self.wo, self.shadowing, aspects)  # (1 + R Q, n)
         self.G = (F * w) @ F.T
         self.r = (rho * w) @ F.T  # (3, 1 + R Q)
         self.yy = np.sum(w * rho * rho, axis=1)  # (3,)
@@ -273,67 +374,108 @@ class _View:
         self.yya = self.yy + lam * alb * alb
         self.albedo = alb
 
-    def solve(self, idx, channels=(0, 1, 2)):
-        """Weights (3, len(idx)) on the columns ``idx`` and the cost (BRDF + albedo terms)."""
-        G = self.Ga[np.ix_(idx, idx)]
-        G = G + 1e-10 * np.trace(G) / len(idx) * np.eye(len(idx))
+    def solve(self, idx, grey=None):
+        """Weights (3, len(idx)) on the columns ``idx`` and the cost (BRDF + albedo terms): each
+        channel its own weights, but the columns flagged in ``grey`` (Fresnel lobes) one weight
+        for all three, in [0, FRESNEL_MAX]."""
+        idx = [int(i) for i in idx]
+        grey = np.zeros(len(idx), bool) if grey is None else np.asarray(grey, bool)
+        own = [i for i, g in zip(idx, grey) if not g]
+        shared = [i for i, g in zip(idx, grey) if g]
+        no, ns = len(own), len(shared)
+        n = 3 * no + ns
+        H, b = np.zeros((n, n)), np.zeros(n)
+        G = self.Ga
+        for c in range(3):
+            sl = slice(c * no, (c + 1) * no)
+            H[sl, sl] = G[np.ix_(own, own)]
+            H[sl, 3 * no :] = G[np.ix_(own, shared)]
+            H[3 * no :, sl] = G[np.ix_(shared, own)]
+            b[sl] = self.ra[c, own]
+        H[3 * no :, 3 * no :] = 3.0 * G[np.ix_(shared, shared)]
+        b[3 * no :] = self.ra[:, shared].sum(axis=0)
+        H = H + 1e-10 * np.trace(H) / n * np.eye(n)
+        z = _nnls_capped(H, b, np.arange(n) >= 3 * no, FRESNEL_MAX)
         x = np.zeros((3, len(idx)))
-        cost = 0.0
-        for c in channels:
-            x[c] = _nnls_gram(G, self.ra[c, idx])
-            cost += float(x[c] @ G @ x[c] - 2.0 * x[c] @ self.ra[c, idx] + self.yya[c])
-        return x, cost
+        x[:, np.flatnonzero(~grey)] = z[: 3 * no].reshape(3, no)
+        x[:, np.flatnonzero(grey)] = z[3 * no :][None, :]
+        return x, float(z @ H @ z - 2.0 * z @ b + np.sum(self.yya))
 
 
-def _cost_fn(vs):
-    """The pixel-share weighted cost per view (channel sum) of a set of columns per view."""
+def _cost_fn(vs, capped_cols=None):
+    """The pixel-share weighted cost per view of a set of columns per view, for the channels'
+    sum (a quick stand-in for the three channels while lobes are chosen); the columns flagged in
+    ``capped_cols`` (Fresnel lobes, one weight for the three channels) capped at 3 FRESNEL_MAX."""
     Ga = np.stack([v.Ga for v in vs])  # (V, M, M)
     ra = np.stack([v.ra.sum(axis=0) for v in vs])  # (V, M)
     yy = np.array([v.yya.sum() for v in vs])
     rows = np.arange(len(vs))[:, None]
+    capped_cols = np.zeros(Ga.shape[1], bool) if capped_cols is None else np.asarray(capped_cols, bool)
+    cap = 3.0 * FRESNEL_MAX
 
-    def costs(cols):
+    def costs(cols, constrained=True):
+        """Per view; ``constrained=False``: without the bounds, a lower bound on the cost."""
         G = Ga[rows[:, :, None], cols[:, :, None], cols[:, None, :]]
         G = G + (1e-10 * np.trace(G, axis1=1, axis2=2) / cols.shape[1])[:, None, None] * np.eye(cols.shape[1])
         b = ra[rows, cols]
+        capped = capped_cols[cols]  # (V, m)
         x = np.linalg.solve(G, b[:, :, None])[:, :, 0]  # unconstrained first: usually feasible
-        for m in np.flatnonzero((x < 0.0).any(axis=1)):
-            x[m] = _nnls_gram(G[m], b[m])
+        if constrained:
+            for m in np.flatnonzero((x < 0.0).any(axis=1) | (capped & (x > cap)).any(axis=1)):
+                x[m] = _nnls_capped(G[m], b[m], capped[m], cap)
         return np.einsum("vi,vij,vj->v", x, G, x) - 2.0 * np.sum(x * b, axis=1) + yy
 
     return costs
 
 
-def _greedy(vs, n_lobes, n_dict, shares):
-    """Indices (into the dictionary) of ``n_lobes`` lobes picked greedily for the views ``vs``:
-    each step adds the one that lowers the pixel-share weighted cost (channel sum) most."""
-    costs, sh, V = _cost_fn(vs), np.asarray(shares, float), len(vs)
-    chosen = []
+def _greedy(vs, n_lobes, n_dict, shares, capped_cols=None, min_lobes=None, min_gain=0.0):
+    """Indices (into the dictionary) of up to ``n_lobes`` lobes picked greedily for the views
+    ``vs``: each step adds the one that lowers the pixel-share weighted cost (channel sum) most;
+    past ``min_lobes``, only while that lowers the cost by ``min_gain`` of it at least."""
+    costs, sh, V = _cost_fn(vs, capped_cols), np.asarray(shares, float), len(vs)
+    min_lobes = n_lobes if min_lobes is None else min_lobes
+    chosen, last = [], float(np.sum(sh * costs(np.zeros((V, 1), int))))
     for _ in range(min(n_lobes, n_dict)):
-        best = None
+        # the bounds only raise a cost: candidates in the order of their unbounded cost, until
+        # that is above the best bounded one found (the same pick, far fewer NNLS solves)
+        trials = []
         for k in range(n_dict):
             if k in chosen:
                 continue
             cols = np.broadcast_to(np.array([0] + [1 + j for j in sorted(chosen + [k])]), (V, len(chosen) + 2))
+            trials.append((float(np.sum(sh * costs(cols, constrained=False))), k, cols))
+        best = None
+        for low, k, cols in sorted(trials, key=lambda t: (t[0], t[1])):
+            if best is not None and low >= best[0]:
+                break
             cost = float(np.sum(sh * costs(cols)))
-            if best is None or cost < best[0]:
+            if best is None or cost < best[0] or (cost == best[0] and k < best[1]):
                 best = (cost, k)
+        if len(chosen) >= min_lobes and best[0] > (1.0 - min_gain) * last:
+            break
         chosen.append(best[1])
+        last = best[0]
     return sorted(chosen)
 
 
-def _choose_aspects(vs, n_lobes, n_aspects, shares, round_index=0, round_views=(0,), passes=2):
+def _choose_aspects(vs, n_lobes, n_aspects, shares, round_index=0, round_views=(0,), passes=2, round_lobes=()):
     """Each lobe's aspect per view (indices (K, V)) for views ``vs`` whose columns are the
     lobes' aspects (lobe k, aspect a at 1 + k n_aspects + a): coordinate descent from round
     lobes, each lobe in turn taking per view the aspect that costs least with the others fixed.
-    Views in ``round_views`` keep aspect 1 (index ``round_index``)."""
-    costs, V = _cost_fn(vs), len(vs)
+    Views in ``round_views`` and lobes in ``round_lobes`` (Fresnel lobes) keep aspect 1 (index
+    ``round_index``)."""
+    capped = np.zeros(1 + n_lobes * n_aspects, bool)
+    for k in round_lobes:
+        capped[1 + k * n_aspects : 1 + (k + 1) * n_aspects] = True
+    costs, V = _cost_fn(vs, capped), len(vs)
     pick = np.full((n_lobes, V), round_index)
     allowed = np.ones((n_aspects, V), bool)
     allowed[:, list(round_views)] = False
     allowed[round_index, list(round_views)] = True
     for _ in range(passes):
         for k in range(n_lobes):
+            if k in round_lobes:
+                continue
             table = np.full((n_aspects, V), np.inf)
             for a in range(n_aspects):
                 trial = pick.copy()
@@ -346,40 +488,70 @@ def _choose_aspects(vs, n_lobes, n_aspects, shares, round_index=0, round_views=(
 
 def fit_lobes(
     table,
-    n_lobes=N_LOBES,
+    n_lobes: int = N_LOBES,
     shadowing="correlated",
-    n_views=N_VIEWS,
+    n_views: int = N_VIEWS,
     dictionary=DICTIONARY,
     aspects=ASPECTS,
+    kinds=KINDS,
 ) -> LobeFit:
-    """Fit the model above to a MerlTable (missing cells left out). One set of roughness values
-    serves every view (a roughness picked per view was measured too: no gain, issue 28); each
-    lobe's aspect may change from view to view (``aspects=(1.0,)``: isotropic lobes)."""
+    """Fit the model above to a MerlTable (missing cells left out). One set of lobes (kind and
+    roughness, picked among ``kinds`` × ``dictionary``) serves every view (a roughness picked
+    per view was measured too: no gain, issue 28); each Glossy lobe's aspect may change from
+    view to view (``aspects=(1.0,)``: isotropic lobes). Lobes whose weight is 0 at every view
+    are dropped (the node tree draws no closure for them)."""
+    from ..limits import check
+
+    n_lobes, n_views = check("lobes", n_lobes, "n_lobes"), check("lookup_texels", n_views, "n_views")
+    samples = list(_table_at_views(table, texel_views_deg(n_views)))
+    return _fit_samples(samples, n_lobes, shadowing, n_views, dictionary, aspects, kinds, table)
+
+
+def _fit_samples(samples, n_lobes, shadowing, n_views, dictionary, aspects, kinds, table=None, error_samples=None):
     if shadowing not in SHADOWING:
         raise ValueError(f"unknown shadowing {shadowing!r}")
+    if not kinds or any(k not in KINDS for k in kinds):
+        raise ValueError(f"lobe kinds must be among {KINDS}")
     dictionary, aspects = tuple(dictionary), tuple(float(q) for q in aspects)
     if 1.0 not in aspects or any(not ASPECT_RANGE[0] <= q <= ASPECT_RANGE[1] for q in aspects):
         raise ValueError(f"aspects must hold 1 and lie in {ASPECT_RANGE}")
-    views = texel_views_deg(n_views)
-    vs = [_View(*at, shadowing, dictionary) for at in _table_at_views(table, views)]
-    # The roughness values among round lobes, then each lobe's aspect per view (the first texel
-    # stays round: at normal view the plane of incidence, the lobe's tangent, is undefined).
-    pick = _greedy(vs, min(n_lobes, len(dictionary)), len(dictionary), [v.share for v in vs])
-    rough = tuple(dictionary[k] for k in pick)
+    lobes_all = [(kind, r) for kind in kinds for r in dictionary]
+    vs = [_View(*at, shadowing, lobes_all) for at in samples]
+    fres_cols = np.array([False] + [kind == FRESNEL for kind, _ in lobes_all])
+    # The lobes among round ones, then each Glossy lobe's aspect per view (the first texel stays
+    # round: at normal view the plane of incidence, the lobe's tangent, is undefined).
+    pick = _greedy(
+        vs,
+        min(n_lobes, len(lobes_all)),
+        len(lobes_all),
+        [v.share for v in vs],
+        fres_cols,
+        min(MIN_LOBES, n_lobes),
+        MIN_GAIN,
+    )
+    chosen = [lobes_all[k] for k in pick]
+    fresnel = [kind == FRESNEL for kind, _ in chosen]
     nq = len(aspects)
-    if nq > 1:
-        vs = [v.with_lobes(rough, aspects) for v in vs]
-        qi = _choose_aspects(vs, len(rough), nq, [v.share for v in vs], aspects.index(1.0))
-        cols = 1 + np.arange(len(rough))[:, None] * nq + qi  # (K, views)
+    if nq > 1 and not all(fresnel):
+        vs = [v.with_lobes(chosen, aspects) for v in vs]
+        round_lobes = tuple(k for k, f in enumerate(fresnel) if f)
+        qi = _choose_aspects(vs, len(chosen), nq, [v.share for v in vs], aspects.index(1.0), round_lobes=round_lobes)
+        cols = 1 + np.arange(len(chosen))[:, None] * nq + qi  # (K, views)
     else:  # round lobes: their columns in the dictionary's normal equations
-        qi = np.zeros((len(rough), len(vs)), int)
+        qi = np.full((len(chosen), len(vs)), aspects.index(1.0))
         cols = np.repeat(1 + np.array(pick)[:, None], len(vs), axis=1)
-    W = np.zeros((1 + len(rough), n_views, 3))
+    W = np.zeros((1 + len(chosen), n_views, 3))
     for j, v in enumerate(vs):
-        W[:, j, :] = v.solve([0] + [int(c) for c in cols[:, j]])[0].T
+        W[:, j, :] = v.solve([0] + [int(c) for c in cols[:, j]], [False] + fresnel)[0].T
     q = np.asarray(aspects)[qi]
-    err, alb_err = measure(LobeFit(rough, W, shadowing, 0.0, 0.0, q), table)
-    return LobeFit(rough, W, shadowing, err, alb_err, q)
+    keep = [k for k in range(len(chosen)) if np.any(W[1 + k] > 0.0)]  # a closure only for a lobe in use
+    W = W[[0] + [1 + k for k in keep]]
+    q = q[keep] if keep else np.ones((0, n_views))
+    rough = tuple(chosen[k][1] for k in keep)
+    kinds_kept = tuple(chosen[k][0] for k in keep)
+    fit = LobeFit(rough, W, shadowing, 0.0, 0.0, q, kinds_kept)
+    err, alb_err = measure(fit, table) if error_samples is None else _measure_samples(fit, error_samples)
+    return LobeFit(rough, W, shadowing, err, alb_err, q, kinds_kept)
 
 
 def measure(fit: LobeFit, table, views_deg=ERROR_VIEWS_DEG):
@@ -387,9 +559,13 @@ def measure(fit: LobeFit, table, views_deg=ERROR_VIEWS_DEG):
     L2 error, cosine and pixel-share weighted over all channels, and the largest relative error
     of the directional albedo over the views and channels (where the table holds 0.1 % of its
     largest albedo)."""
+    return _measure_samples(fit, _table_at_views(table, views_deg))
+
+
+def _measure_samples(fit, samples):
     num = den = 0.0
     alb_t, alb_f = [], []
-    for deg, wi, wo, w, rho in _table_at_views(table, views_deg):
+    for deg, wi, wo, w, rho in samples:
         vals = lobes_brdf(fit, wi, np.broadcast_to(wo, wi.shape))
         s = pixel_share(deg)
         num += s * float(np.sum(w * (vals - rho) ** 2))
@@ -407,7 +583,7 @@ RING_HARMONICS = 2  # the azimuthal orders a closure may follow on such a ring (
 RING_AZIMUTHS = 96
 
 
-def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg=NEAR_MIRROR_DEG):
+def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg: float = NEAR_MIRROR_DEG):
     """A lower bound on ``measure``'s BRDF error for any node setup of isotropic closures (issue 28).
 
     An isotropic closure (Diffuse, Glossy, Principled, Sheen; EEVEE renders every closure so)
@@ -418,8 +594,10 @@ def near_mirror_floor(table, views_deg=ERROR_VIEWS_DEG, theta_h_max_deg=NEAR_MIR
     those rings outside that span, no such setup follows. Returns that part's share of the
     table's norm in ``measure``'s weighting (the same denominator; the rings integrated more
     finely over azimuth, each by its weighted least-squares residual)."""
-    from .merl import lookup, theta_h_edges
+    from ..file.merl import lookup, theta_h_edges
+    from ..limits import check
 
+    theta_h_max_deg = check("near_mirror_deg", theta_h_max_deg, "theta_h_max_deg")
     den = sum(pixel_share(deg) * float(np.sum(w * rho**2)) for deg, _, _, w, rho in _table_at_views(table, views_deg))
     if den <= 0.0:
         return 0.0

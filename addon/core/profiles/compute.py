@@ -7,8 +7,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..file.merl import MerlTable, horizon_mask
 from .integrate import MAX_ORDER, centred_view_sums, default_views, get_operator, table_sums
-from .merl import MerlTable, horizon_mask
 from .moments import CHANNELS, KEYS_BY_ORDER, PROFILE_KEYS, monomials, profiles_from_sums, shift_amplification
 from .quadrature import RuleParams, slice_rule
 
@@ -51,7 +51,7 @@ class Profiles:
     def from_json(cls, data: dict, name: str = "") -> "Profiles":
         """Profiles from the JSON ``to_json`` writes; ValueError naming the first fault (wrong
         types, lists of different lengths, values out of range) for anything else."""
-        from .limits import MAX_JSON_LIST
+        from ..limits import MAX_JSON_LIST
 
         def arr(v, where, length=None, finite=False):
             if not isinstance(v, list):
@@ -102,7 +102,7 @@ ROBUST_PERCENTILE = 0.05
 
 def _slice_lower_cosine(cells):
     """cos of the lower direction's polar angle at each cell's centre (phi_h = 0)."""
-    from .merl import RES_PD, RES_TD, RES_TH
+    from ..file.merl import RES_PD, RES_TD, RES_TH
 
     ith, rest = np.divmod(np.asarray(cells), RES_TD * RES_PD)
     itd, ipd = np.divmod(rest, RES_PD)
@@ -193,7 +193,7 @@ def compute_profiles(
     ``floor`` picks the automatic floor: ``min`` (the paper's) or ``robust`` (diffuse_floor).
     ``progress(done, total)`` is called while the (cached) operator is first built.
     """
-    from .limits import check
+    from ..limits import check
 
     max_order = check("max_order", max_order, "max_order")
     if floor not in FLOORS:
@@ -299,7 +299,7 @@ def _trilinear_sums(table, kd, theta_o, max_order, params, progress):
     one (the renormalisation over measured neighbours then depends on the table). It reads
     the specular part (max(rho - kd, 0) per cell, as the nearest path and the cached
     trilinear operator do), so all three agree where their masks do."""
-    from .merl import MerlTable, lookup_angles
+    from ..file.merl import MerlTable, lookup_angles
 
     params = replace(params, exact=False)
     spec_table = MerlTable(np.maximum(table.rho - kd[:, None], 0.0) * table.valid, table.valid, None)
@@ -328,8 +328,10 @@ def function_profiles(f, theta_o, max_order: int = MAX_ORDER, **rule):
     """Profiles of an analytic slice ``f(theta, phi, theta_o) -> (C, n)``: dict key -> (views, C).
 
     This is the integrator's function interface, used against closed forms."""
+    from ..limits import check
     from .integrate import function_sums
 
+    max_order = check("max_order", max_order, "max_order")
     theta_o = np.atleast_1d(np.asarray(theta_o, dtype=float))
     sums, ct, cp = function_sums(f, theta_o, max_order, **rule)
     return _stats(sums, ct, max_order, cp)
@@ -337,7 +339,10 @@ def function_profiles(f, theta_o, max_order: int = MAX_ORDER, **rule):
 
 def monte_carlo_profiles(evaluate, theta_o, n_samples: int, seed: int = 0, max_order: int = MAX_ORDER):
     """The paper's estimator (Eq. 6), for comparison: dict key -> (views, C)."""
+    from ..limits import check
     from .integrate import monte_carlo_sums
 
+    n_samples = check("mc_samples", n_samples, "n_samples")
+    seed, max_order = check("seed", seed, "seed"), check("max_order", max_order, "max_order")
     theta_o = np.atleast_1d(np.asarray(theta_o, dtype=float))
     return _stats(monte_carlo_sums(evaluate, theta_o, n_samples, seed, max_order), -theta_o, max_order)

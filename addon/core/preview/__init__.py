@@ -1,5 +1,14 @@
 """Preview rendering without Blender (numpy + scipy): the engine half of SPEC §4.
 
+Modules in the order a preview runs:
+- ``envmap``: the environment map (Blender's world mapping), its sampling and irradiance.
+- ``lights``: the map's bright texels gathered into a few light clusters for the bake.
+- ``scene``: the row of spheres under the orthographic camera, texel by texel.
+- ``lobe``: the BRDFs the estimators take (the table, the moment model) and their samplers.
+- ``estimators``: the bake (the baked path's texture and image) and the converged reference.
+- ``cache``: bakes kept by content.
+- ``live``: the edit and the bake a slider move runs, in the live preview's thread.
+
 Public API
 ----------
 ``Environment(pixels (H, W, 3) top row first, name)``: an equirectangular map with Blender's
@@ -20,6 +29,7 @@ from .cache import BakeCache, bake_key
 from .envmap import Environment, direction_to_uv, uv_to_direction
 from .estimators import bake_sphere, normalized_rmse, reference_sphere, relative_rmse, render_baked, render_reference
 from .lobe import (
+    HalfVectorSampler,
     LobeTable,
     ModelBRDF,
     MomentParams,
@@ -43,6 +53,7 @@ __all__ = [
     "normalized_rmse",
     "render_baked",
     "render_reference",
+    "HalfVectorSampler",
     "LobeTable",
     "ModelBRDF",
     "MomentParams",

@@ -16,7 +16,8 @@ import math
 import numpy as np
 from scipy.special import log_ndtr, ndtr
 
-from .geometry import HALF_PI
+from ..geometry import HALF_PI
+from ..limits import check
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -135,8 +136,9 @@ def reachable_variance(mean, var):
     return np.minimum(var, CAP_FRACTION * variance_cap(mean))
 
 
-def solve(mean, var, iters=40):
+def solve(mean, var, iters: int = 40):
     """(m, s, var_used) of the Gaussian whose truncation has this mean and (capped) variance."""
+    iters = check("iterations", iters, "iters")
     mean = np.clip(np.asarray(mean, float), -HALF_PI * (1 - 1e-9), HALF_PI * (1 - 1e-9))
     var = np.maximum(reachable_variance(mean, var), 1e-14)
     sd = np.sqrt(var)

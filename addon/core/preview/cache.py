@@ -13,7 +13,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from ..safeio import read_input
+from ..file.safeio import read_input
 from .estimators import bake_sphere
 
 
@@ -29,7 +29,7 @@ def _code_version():
 BAKE_VERSION = _code_version()
 
 
-def bake_key(brdf, env, diameter, lobe_samples, seed=0) -> str:
+def bake_key(brdf, env, diameter: int, lobe_samples: int, seed: int = 0) -> str:
     """The content key of a bake; its numbers checked as ``bake_sphere`` checks them (a cache
     hit must not let through what a bake would refuse)."""
     from ..limits import check
@@ -48,19 +48,23 @@ class BakeCache:
     ``limits.BAKE_CACHE_MAX_*``, least recently used first: slider drags would otherwise fill
     the disk)."""
 
-    def __init__(self, folder=None, max_items=32, max_files=None, max_bytes=None):
-        from ..limits import BAKE_CACHE_MAX_BYTES, BAKE_CACHE_MAX_ENTRIES
+    def __init__(self, folder=None, max_items: int = 32, max_files: int | None = None, max_bytes: int | None = None):
+        from ..limits import BAKE_CACHE_MAX_BYTES, BAKE_CACHE_MAX_ENTRIES, check
 
         self.folder = folder
-        self.max_items = int(max_items)
-        self.max_files = int(max_files or BAKE_CACHE_MAX_ENTRIES)
-        self.max_bytes = int(max_bytes or BAKE_CACHE_MAX_BYTES)
+        self.max_items = check("bake_cache_items", max_items, "max_items")
+        self.max_files = (
+            BAKE_CACHE_MAX_ENTRIES if max_files is None else check("bake_cache_files", max_files, "max_files")
+        )
+        self.max_bytes = (
+            BAKE_CACHE_MAX_BYTES if max_bytes is None else check("bake_cache_bytes", max_bytes, "max_bytes")
+        )
         self._mem = OrderedDict()
         self.computed = []  # keys baked by this cache, in order (tests and stats read it)
 
-    def get(self, brdf, env, diameter, lobe_samples=64, seed=0):
+    def get(self, brdf, env, diameter: int, lobe_samples: int = 64, seed: int = 0):
         """(radiance (D, D, 3), coverage (D, D), key), baking only on a miss."""
-        from .. import cachefs
+        from ..file import cachefs
 
         key = bake_key(brdf, env, diameter, lobe_samples, seed)
         if key in self._mem:
@@ -77,7 +81,7 @@ class BakeCache:
         self.computed.append(key)
         self._store(key, rgb, cov)
         if path:
-            from ..atomic import atomic_path
+            from ..file.atomic import atomic_path
 
             try:
                 cachefs.cache_folder(self.folder)
@@ -101,7 +105,7 @@ def _read_bake(path, diameter):
     """(radiance, coverage) of a sealed bake file, or None if it is damaged or not a bake."""
     import io
 
-    from .. import cachefs
+    from ..file import cachefs
 
     data = cachefs.read_verified(path)
     if data is None:
@@ -123,6 +127,6 @@ def _read_bake(path, diameter):
 
 def prune(folder, prefix, suffix, keep):
     """Keep the ``keep`` most recently used sealed entries ``prefix*suffix`` (cachefs.prune)."""
-    from .. import cachefs
+    from ..file import cachefs
 
     cachefs.prune(folder, keep, 1 << 62, prefix=prefix)

@@ -54,8 +54,8 @@ _TABLES = {}  # (path, mtime, size) -> MerlTable: the source stays in memory bet
 
 
 def source_table(path):
-    from ..nbrdf import read_table
-    from ..sources import source_file
+    from ..file.nbrdf import read_table
+    from ..file.sources import source_file
 
     st = os.stat(source_file(path))  # a MERL file, or the FILE of FILE:NAME (a network)
     key = (path, st.st_mtime_ns, st.st_size)

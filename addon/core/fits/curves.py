@@ -329,7 +329,7 @@ def set_points(doc, max_materials=None):
     as parsed JSON) that has both fits, in the file's order; and the set's correlation ``a``,
     or None when the file has none (one material, or none inside the model). ValueError (one
     line) for a document that is not such a file, or holds more than ``max_materials``."""
-    from .limits import MAX_SET_MATERIALS
+    from ..limits import MAX_SET_MATERIALS
 
     limit = MAX_SET_MATERIALS if max_materials is None else max_materials
     if not isinstance(doc, dict) or not isinstance(doc.get("materials"), dict):
@@ -360,8 +360,8 @@ def load_set_points(path):
     """``set_points`` of the fits.json at ``path``, read through ``safeio.load_json`` (a regular
     file of at most ``limits.MAX_SET_JSON_BYTES``, no NaN/Infinity); UnsafePath or ValueError,
     one line naming the file, for anything else."""
-    from .limits import MAX_SET_JSON_BYTES
-    from .safeio import UnsafePath, load_json
+    from ..file.safeio import UnsafePath, load_json
+    from ..limits import MAX_SET_JSON_BYTES
 
     doc = load_json(path, MAX_SET_JSON_BYTES, "fits JSON")
     try:

@@ -3,7 +3,7 @@ a mix of closure shapes whose colours follow the view, each view solved on its o
 
 Outside OSL a node tree cannot see the light direction: only closures shape the BRDF across
 incoming directions, and the tree sets their colours and parameters, at most per view (a
-lookup indexed by the view angle, as ``core.lobes`` does). So for every view the best such
+lookup indexed by the view angle, as ``core.material.lobes`` does). So for every view the best such
 setup is a combination of closure shapes, and the best over all setups is bounded below by the
 least-squares fit of the table, view by view, over every shape in a dense set: the one here
 holds, at 18 roughness values from 0.01 to 1 (those of ``lobes.DICTIONARY`` among them),

@@ -97,7 +97,7 @@ def sweep_pending(only_pid=None) -> list:
             continue
         entry = os.path.join(folder, name)
         try:
-            from .limits import MAX_JOURNAL_ENTRY_BYTES
+            from ..limits import MAX_JOURNAL_ENTRY_BYTES
             from .safeio import read_input
 
             rec = json.loads(read_input(entry, MAX_JOURNAL_ENTRY_BYTES, "journal entry", register=False))

@@ -54,7 +54,15 @@ def _measure(theta, phi):
 # --- the bake ---------------------------------------------------------------------------------
 
 
-def bake_sphere(brdf, env, diameter, lobe_samples=64, seed=0, light_samples=None, cosine_share=None):
+def bake_sphere(
+    brdf,
+    env,
+    diameter: int,
+    lobe_samples: int = 64,
+    seed: int = 0,
+    light_samples: int | None = None,
+    cosine_share: float | None = None,
+):
     """Bake one sphere: returns (radiance (D, D, 3), coverage (D, D)), rows top first.
 
     radiance is the mean over the covered part of each texel (not premultiplied); coverage
@@ -195,7 +203,7 @@ def _brdf_density(brdf, theta, phi, theta_o, beta):
 # --- the reference ---------------------------------------------------------------------------
 
 
-def reference_sphere(brdf, env, diameter, spp=1024, seed=0, shares=None, diffuse_grid=4):
+def reference_sphere(brdf, env, diameter: int, spp: int = 1024, seed: int = 0, shares=None, diffuse_grid: int = 4):
     """Converged estimate for one sphere: (premultiplied radiance (D, D, 3), coverage).
 
     The kd floor is integrated deterministically: kd E(n) on a ``diffuse_grid``^2 grid of
@@ -284,7 +292,7 @@ def _check_row(layout, brdfs):
         raise ValueError(f"brdfs: expected 1 to {layout.count} (the layout's spheres), got {n}")
 
 
-def render_reference(layout, brdfs, env, spp=1024, seed=0):
+def render_reference(layout, brdfs, env, spp: int = 1024, seed: int = 0):
     """(H, W, 4) premultiplied RGBA of the row of spheres, converged by Monte Carlo."""
     spp, seed = check("spp", spp), check("seed", seed)
     _check_row(layout, brdfs)
@@ -295,7 +303,7 @@ def render_reference(layout, brdfs, env, spp=1024, seed=0):
     return layout.compose(tiles)
 
 
-def render_baked(layout, brdfs, env, lobe_samples=64, seed=0, light_samples=None):
+def render_baked(layout, brdfs, env, lobe_samples: int = 64, seed: int = 0, light_samples: int | None = None):
     """(H, W, 4) premultiplied RGBA: what the baked path shows (texel = pixel)."""
     lobe_samples, seed = check("bake_samples", lobe_samples, "lobe_samples"), check("seed", seed)
     _check_row(layout, brdfs)

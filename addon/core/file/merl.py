@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry import HALF_PI, half_diff_from_directions
 from .atomic import atomic_path
-from .geometry import HALF_PI, half_diff_from_directions
 from .safeio import UnsafePath, guard_output, open_input
 
 RES_TH, RES_TD, RES_PD = 90, 90, 180
@@ -278,7 +278,7 @@ def horizon_mask() -> np.ndarray:
     """(N_CELLS,) bool: cells whose centre has both directions above the horizon (the cells a
     tabulated table holds; the Neural-BRDF decodes have the same mask)."""
     if "mask" not in _HORIZON:
-        from .geometry import directions_from_half_diff
+        from ..geometry import directions_from_half_diff
 
         wi, wo = directions_from_half_diff(*cell_centres())
         _HORIZON["mask"] = ~((wi[..., 2] <= 0.0) | (wo[..., 2] <= 0.0)).reshape(N_CELLS)
@@ -315,7 +315,7 @@ def lookup(table: MerlTable, wi, wo, interp="nearest"):
 
 def tabulate(brdf, *, path=None) -> MerlTable:
     """Tabulate an analytic BRDF ``brdf(wi, wo) -> (3, n)`` at the cell centres."""
-    from .geometry import directions_from_half_diff
+    from ..geometry import directions_from_half_diff
 
     theta_h, theta_d, phi_d = cell_centres()
     wi, wo = directions_from_half_diff(theta_h, theta_d, phi_d)
