@@ -120,3 +120,49 @@ def test_opening_a_file_ends_the_drawing_threads_first(blender):
         job_stop.set()
         drawing_stop.set()
         listener.join(5)
+
+
+def test_a_slider_moves_work_runs_on_one_worker_the_latest_first(blender):
+    """Slider moves hand their work to one long-lived thread (``LatestWorker``): a move made
+    while an older one runs replaces any not yet started, opening a file stops the worker, and
+    the next move starts a fresh one."""
+    import threading
+
+    lifecycle = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.lifecycle"]
+    worker = lifecycle.LatestWorker("test: announce")
+    release, ran, threads = threading.Event(), [], []
+
+    def job(tag, wait=False):
+        def run():
+            if threading.current_thread() not in threads:  # the objects: an ident may be reused
+                threads.append(threading.current_thread())
+            if wait:
+                release.wait(30)
+            ran.append(tag)
+
+        return run
+
+    worker.submit(job("first", wait=True))
+    for _ in range(200):  # the first is running (and holding the worker) before the others come
+        if threads:
+            break
+        threading.Event().wait(0.01)
+    for tag in ("second", "third", "latest"):
+        worker.submit(job(tag))
+    release.set()
+    for _ in range(300):
+        if ran[-1:] == ["latest"]:
+            break
+        threading.Event().wait(0.01)
+    assert ran == ["first", "latest"] and len(threads) == 1  # the moves in between were dropped
+    named = [t for t in lifecycle.threads() if t.name == "test: announce"]
+    assert len(named) == 1
+    blender.ops.wm.read_homefile(use_empty=True)  # opening a file stops it
+    assert not named[0].is_alive()
+    worker.submit(job("after"))
+    for _ in range(300):
+        if ran[-1:] == ["after"]:
+            break
+        threading.Event().wait(0.01)
+    assert ran[-1] == "after" and len(threads) == 2  # a fresh thread served it
+    lifecycle.file_loading(timeout=5.0)

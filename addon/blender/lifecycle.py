@@ -91,6 +91,50 @@ def start_thread(target, name, stop=None, args=(), outlives_file=False) -> threa
     return thread
 
 
+class LatestWorker:
+    """One daemon thread that runs the latest job handed to it (a job not started when a newer
+    one comes is dropped). A slider move hands its work here instead of starting a thread:
+    ``Thread.start`` waits until the new thread runs, which under load, with the live preview's
+    numpy holding the GIL, kept the main thread 0.2 s (the windowed lane's slider moves)."""
+
+    def __init__(self, name):
+        self.name = name
+        self._cond = threading.Condition()
+        self._job = None
+        self._token = None  # the running thread's; stopped by file_loading and shutdown
+
+    def submit(self, fn):
+        with self._cond:
+            self._job = fn
+            fresh = self._token is None or self._token["stopped"]
+            if fresh:
+                self._token = {"stopped": False}
+            token = self._token
+            self._cond.notify_all()
+        if fresh:
+            start_thread(self._run, self.name, stop=lambda: self._stop(token), args=(token,))
+
+    def _stop(self, token):
+        with self._cond:
+            token["stopped"] = True
+            if self._token is token:
+                self._job = None
+            self._cond.notify_all()
+
+    def _run(self, token):
+        while True:
+            with self._cond:
+                while not token["stopped"] and self._job is None:
+                    self._cond.wait()
+                if token["stopped"]:
+                    return
+                fn, self._job = self._job, None
+            try:
+                fn()
+            except Exception as exc:  # noqa: BLE001 - the worker serves the next move
+                print(f"BRDF Moments: {self.name}: {type(exc).__name__}: {exc}")
+
+
 def threads() -> list:
     """The add-on's threads still alive."""
     with _LOCK:

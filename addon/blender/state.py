@@ -489,7 +489,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
         if bpy.app.background:
             self.announced_json = _announcement_json(_announce(*inputs))
             return
-        from .lifecycle import register_timer, start_thread
+        from .lifecycle import register_timer
 
         name = self.id_data.name
         _ANNOUNCED["gen"] = gen = _ANNOUNCED.get("gen", 0) + 1
@@ -512,7 +512,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
                 mat.brdf_moments.announced_json = done[0]
             return None
 
-        start_thread(work, "brdf_moments: announce")
+        _ANNOUNCER.submit(work)
         register_timer(place, first_interval=0.05)
 
     def slider_targets(self):
@@ -540,6 +540,7 @@ class BRDFMomentsMaterial(bpy.types.PropertyGroup):
 
 
 _ANNOUNCED: dict = {}  # the latest announcement asked for (a newer slider move wins)
+_ANNOUNCER = lifecycle.LatestWorker("brdf_moments: announce")  # one thread serves every slider move
 
 
 @lifecycle.on_file_load
