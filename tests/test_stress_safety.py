@@ -75,7 +75,7 @@ SUBPROCESS_CALLS = {
 
 def test_the_product_code_is_scanned():
     files = _product_files()
-    assert len(files) > 20 and any(f.endswith(os.path.join("core", "merl.py")) for f in files)
+    assert len(files) > 20 and any(f.endswith(os.path.join("core", "file", "merl.py")) for f in files)
 
 
 # The one place that may unpickle: a job's result coming back from the job's own forked child
