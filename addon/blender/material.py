@@ -78,23 +78,7 @@ def fill_principled(group, fit):
         _set_input(bsdf, ("IOR",), fit.ior)
     else:  # 3.x: Specular 0.5 = F0 0.04
         _set_input(bsdf, ("Specular",), min(fit.specular_3x, 1.0))
-    for name, value in (
-        ("Coat Weight", 0.0),
-        ("Clearcoat", 0.0),
-        ("Sheen Weight", 0.0),
-        ("Sheen", 0.0),
-        ("Transmission Weight", 0.0),
-        ("Transmission", 0.0),
-        ("Subsurface Weight", 0.0),
-        ("Subsurface", 0.0),
-        ("Specular Tint", (1.0, 1.0, 1.0, 1.0)),
-    ):
-        sock = bsdf.inputs.get(name)
-        if sock is None:
-            continue
-        if isinstance(value, tuple) and not hasattr(sock.default_value, "__len__"):
-            value = 0.0  # 3.x's Specular Tint is a float: 0 is untinted
-        sock.default_value = value
+    _only_the_base_layer(bsdf)
     group.links.new(bsdf.outputs[0], out.inputs[0])
     return bsdf
 
@@ -107,6 +91,30 @@ def _glossy_node(group, anisotropic=False, distribution="GGX"):
     node.distribution = distribution  # GGX or BECKMANN, single scattering: the model core.material.lobes fits
     _set_input(node, ("Anisotropy",), 0.0)  # isotropic unless the lookup drives it
     return node
+
+
+def _only_the_base_layer(node, *more):
+    """A Principled BSDF with no coat, sheen, transmission or subsurface and an untinted
+    specular, whichever of those inputs this Blender has (4.x's names or 3.x's); ``more``:
+    further (input, value) pairs."""
+    for name, value in (
+        ("Coat Weight", 0.0),
+        ("Clearcoat", 0.0),
+        ("Sheen Weight", 0.0),
+        ("Sheen", 0.0),
+        ("Transmission Weight", 0.0),
+        ("Transmission", 0.0),
+        ("Subsurface Weight", 0.0),
+        ("Subsurface", 0.0),
+        ("Specular Tint", (1.0, 1.0, 1.0, 1.0)),
+        *more,
+    ):
+        sock = node.inputs.get(name)
+        if sock is None:
+            continue
+        if isinstance(value, tuple) and not hasattr(sock.default_value, "__len__"):
+            value = 0.0  # 3.x's Specular Tint is a float: 0 is untinted
+        sock.default_value = value
 
 
 def _fresnel_node(group, roughness):
@@ -124,26 +132,7 @@ def _fresnel_node(group, roughness):
     _set_input(node, ("Metallic",), 1.0)
     _set_input(node, ("Roughness",), roughness)
     _set_input(node, ("Specular",), PRINCIPLED_3X_SPECULAR)  # 3.x only
-    for name, value in (
-        ("Coat Weight", 0.0),
-        ("Clearcoat", 0.0),
-        ("Sheen Weight", 0.0),
-        ("Sheen", 0.0),
-        ("Transmission Weight", 0.0),
-        ("Transmission", 0.0),
-        ("Subsurface Weight", 0.0),
-        ("Subsurface", 0.0),
-        ("Anisotropic", 0.0),
-        ("Emission Strength", 0.0),
-        ("Thin Film Thickness", 0.0),
-        ("Specular Tint", (1.0, 1.0, 1.0, 1.0)),
-    ):
-        sock = node.inputs.get(name)
-        if sock is None:
-            continue
-        if isinstance(value, tuple) and not hasattr(sock.default_value, "__len__"):
-            value = 0.0  # 3.x's Specular Tint is a float (and with metallic 1 it does nothing)
-        sock.default_value = value
+    _only_the_base_layer(node, ("Anisotropic", 0.0), ("Emission Strength", 0.0), ("Thin Film Thickness", 0.0))
     if "Emission" in node.inputs:  # 3.x: the emission colour (black: none)
         node.inputs["Emission"].default_value = (0.0, 0.0, 0.0, 1.0)
     return node
