@@ -1,6 +1,6 @@
 """The check that Cycles renders a stretched lobe of ``core.material.lobes`` as the fit models it: one GGX
 lobe (roughness 0.3, white) stretched across the plane of incidence (aspect 3 past the first
-texel), put into a material by the add-on's ``apply_lobes``, on a sphere under Blender's studio
+texel; and, as broad edits need, in it: aspect 1/3), put into a material by the add-on's ``apply_lobes``, on a sphere under Blender's studio
 HDRI, against a converged numpy render of the model itself (``lobes_brdf``: a MERL table cannot
 hold it, its axes follow the view and a table is reciprocal), of the same lobe stretched in the
 plane, and of the round lobe. Run by the bpy-module tests and, in Debian's 3.4, by
@@ -29,7 +29,8 @@ def _kinds_case(L, shadowing):
 
 def render_errors(bpy, material, exr_path, case="stretched"):
     """Per-pixel relative RMSE of the render against the three references. ``case``:
-    "stretched" (the stretched lobe above) or "kinds" (``_kinds_case``: Beckmann and Fresnel
+    "stretched" (the stretched lobe above), "in the plane" (the same lobe stretched in the plane
+    of incidence: aspect 1/3, against it stretched across and round) or "kinds" (``_kinds_case``: Beckmann and Fresnel
     lobes), the model's error under "model"."""
     from addon.blender.preview import render_still
     from addon.blender.preview import scene as sc
@@ -45,11 +46,12 @@ def render_errors(bpy, material, exr_path, case="stretched"):
     q = np.full((1, n), ASPECT)
     q[0, 0] = 1.0  # round at normal view, as every fit
     shadowing = L.shadowing_for(bpy.app.version)
-    fit = L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0, q)
-    others = {
-        "in the plane": L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0, 1.0 / q),
-        "round": L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0),
-    }
+    across = L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0, q)
+    in_plane = L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0, 1.0 / q)
+    round_ = L.LobeFit((ROUGHNESS,), w, shadowing, 0.0, 0.0)
+    fit, others = across, {"in the plane": in_plane, "round": round_}
+    if case == "in the plane":  # the same lobe stretched in the plane (aspect 1/3), as broad edits need
+        fit, others = in_plane, {"across": across, "round": round_}
     if case == "kinds":
         fit, others = _kinds_case(L, shadowing)
 
@@ -87,7 +89,7 @@ def render_errors(bpy, material, exr_path, case="stretched"):
     material.apply_lobes(mat, fit)
     group = mat.node_tree.nodes["BRDF Moments edit"]
     kinds = [nd.bl_idname for nd in group.node_tree.nodes]
-    if case == "stretched" and "ShaderNodeNewGeometry" not in kinds:
+    if case in ("stretched", "in the plane") and "ShaderNodeNewGeometry" not in kinds:
         raise AssertionError(f"not a stretched lobes group: {group.label}")
     if case == "kinds" and (kinds.count("ShaderNodeBsdfPrincipled") != 1 or "ShaderNodeBsdfDiffuse" in kinds):
         raise AssertionError(f"not one Principled and no Diffuse: {kinds}")

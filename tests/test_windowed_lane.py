@@ -9,6 +9,7 @@ Screenshots, the driver's JSON and Blender's log are kept in out/test-artifacts/
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -426,6 +427,37 @@ def test_the_main_loop_keeps_running_during_jobs(lane):
             assert st["ours_seconds"] < 0.6, st
 
 
+def test_the_sidebar_states_the_lobes_error_and_their_bound(lane):
+    """Issue 37.4: with the fitted lobes applied and rendered in the 3D view, the panel offers
+    Find the Bound; its job (node_bound, in the background) ends, and the sidebar, at Blender's
+    default width, states the error and the bound, each figure whole on one line, no text cut.
+    The bound is the engine's for the table Blender wrote, with 3.4's Smith term."""
+    from addon.core.file.merl import read_merl
+    from addon.core.material.lobes import LobeFit
+    from addon.core.material.node_bound import node_bound
+
+    data, _, _, _ = lane
+    step = data["steps"]["bound_lobes"]
+    assert step["status"] == ["RUNNING_MODAL"] and step["job"]["outcome"] == "finished", step
+    fit = LobeFit.from_dict(step["state"]["artist"]["lobes"])
+    assert step["state"]["artist"]["used"] == "lobes" and fit.bound is not None
+    assert fit.bound == pytest.approx(node_bound(read_merl(step["state"]["edited_path"]), shadowing="separable"))
+    assert fit.bound <= fit.error
+    assert os.path.isfile(step["shot"])
+
+    def sidebar(name):
+        shot = next(s for s in data["panel_shots"] if s["step"] == name)
+        return shot, [e["text"].replace("\u00a0", " ") for e in shot["drawn"] if e["panel"].startswith("VIEW3D_PT")]
+
+    _, before = sidebar("lobes-applied")
+    assert "Find the Bound" in before and not any(re.search(r"bound \d", line) for line in before), before
+    shot, lines = sidebar("lobes-bound")
+    assert "Find the Bound" not in lines
+    for figure in (f"error {100 * fit.error:.1f} %", f"bound {100 * fit.bound:.1f} %"):
+        assert any(figure in line for line in lines), (figure, lines)
+    assert shot["cut"] == [] and shot["sidebar_width"] <= round(220 * data["ui"]["ui_scale"]) + 1
+
+
 def test_screenshots_show_the_window(lane):
     import matplotlib.image
 
@@ -488,6 +520,7 @@ def test_the_panel_fits_blenders_default_width(lane):
         "reopened",
         "lobes-chosen",
         "lobes-applied",
+        "lobes-bound",
     ], [s["step"] for s in shots]
     assert {s["chart"] for s in shots if s["step"] == "loaded"} == {"ENERGY", "MEAN", "VARIANCE", "REGION"}
     assert data["cut_control"]  # the check finds a label that does not fit

@@ -242,7 +242,7 @@ def fill_lobes(group, fit, image):
     total = None
     y = -300
     for r in range(fit.weights.shape[0]):
-        if r == 0 and not np.any(fit.weights[0] > 0.0):
+        if r == 0 and not fit.has_diffuse:
             continue  # no diffuse part at any view
         y -= 380
         kind = fit.kinds[r - 1] if r else None

@@ -455,6 +455,12 @@ def _draw_region(layout, mat, cells):
         row.operator("brdf_moments.clear_set", text="", icon="X").material = mat.name
 
 
+def _figure(word, value):
+    """'error 13.3 %' with no-break spaces: a wrapped line never parts a figure from its word or
+    its unit (the sidebar's default width wraps the error and the bound, issue 37.4)."""
+    return f"{word}\u00a0{100 * value:.1f}\u00a0%"
+
+
 def _renders(mat):
     """What the material renders since Apply: (short line, whole sentence), or None."""
     from .material import is_applied
@@ -465,10 +471,12 @@ def _renders(mat):
     used = state.artist_shader_used
     lobes = state.lobes_fit() if used == "lobes" else None
     if lobes is not None:
-        bound = f", bound {100 * lobes.bound:.1f} %" if lobes.bound is not None else ""
+        bound = f", {_figure('bound', lobes.bound)}" if lobes.bound is not None else ""
         return (
-            f"Renders lobes ≈ (error {100 * lobes.error:.1f} %{bound})",
-            f"'{mat.name}' renders {lobes.n_lobes} lobes ({lobes.describe()}) and a diffuse lobe fitted to the "
+            f"Renders lobes ≈ ({_figure('error', lobes.error)}{bound})",
+            f"'{mat.name}' renders {lobes.n_lobes} lobes ({lobes.describe()})"
+            + (" and a diffuse lobe" if lobes.has_diffuse else "")
+            + " fitted to the "
             f"edited table, their colours{' and stretch' if lobes.anisotropic else ''} following the view angle: "
             f"an approximation, BRDF error {100 * lobes.error:.1f} % (cosine-weighted, as Cycles renders it"
             f"), albedo within {100 * lobes.albedo_error:.1f} %"
@@ -481,9 +489,9 @@ def _renders(mat):
     shader = state.principled_fit() if used == "principled" else None
     if shader is not None:
         bound = state.principled_bound()
-        said = f", bound {100 * bound:.1f} %" if bound is not None else ""
+        said = f", {_figure('bound', bound)}" if bound is not None else ""
         return (
-            f"Renders Principled ≈ (error {100 * shader.error:.1f} %{said})",
+            f"Renders Principled ≈ ({_figure('error', shader.error)}{said})",
             f"'{mat.name}' renders a Principled BSDF fitted to the edited table: an approximation, "
             f"BRDF error {100 * shader.error:.1f} % (cosine-weighted), albedo within "
             f"{100 * shader.albedo_error:.1f} %"

@@ -9,10 +9,12 @@ it. Prints a markdown table and a summary.
 
 ``--reuse FILE``: the bound, floor and Principled figures of tables already measured (JSON lines
 with name, edit, bound, floor, p_error, p_albedo; ``--write FILE`` writes them) are read, not
-computed again: they do not depend on the lobe fit, and node_bound takes most of the run."""
+computed again: they do not depend on the lobe fit, and node_bound takes most of the run. A
+figure a line lacks is computed (a changed bound: drop its key and run again)."""
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 
@@ -74,14 +76,18 @@ def bench_nodes(names, principled=True, out=print, reuse=None, write=None):
             t0 = time.perf_counter()
             f = fit_lobes(t)
             took = time.perf_counter() - t0
-            d = known.get((name, label))
-            if d is None:
-                p = fit_principled(t) if principled else None
-                d = dict(name=name, edit=label, bound=node_bound(t), floor=near_mirror_floor(t))
-                d.update(p_error=p.error, p_albedo=p.albedo_error) if p is not None else None
-                if sink is not None:
-                    sink.write(json.dumps(d) + "\n")
-                    sink.flush()
+            d = dict(known.get((name, label), {}), name=name, edit=label)
+            fresh = {k for k in ("bound", "floor", "p_error") if k not in d}  # what FILE lacks
+            if "bound" in fresh:
+                d["bound"] = node_bound(t)
+            if "floor" in fresh:
+                d["floor"] = near_mirror_floor(t)
+            if "p_error" in fresh and principled:
+                p = fit_principled(t)
+                d.update(p_error=p.error, p_albedo=p.albedo_error)
+            if fresh and sink is not None:
+                sink.write(json.dumps(d) + "\n")
+                sink.flush()
             floors.append(d["floor"])
             bounds.append(d["bound"])
             errs.append(f.error)
@@ -132,10 +138,17 @@ def bench_nodes(names, principled=True, out=print, reuse=None, write=None):
         )
 
 
-def main(argv):
-    """Engine figures by default; ``--render [--eevee] [names...]``: the rendered check
-    (``bench_artist.bench_nodes_render``, needs Blender)."""
+def main(argv=None):
+    """Engine figures by default; ``--render [--eevee] [--model] [--under-bound] [names...]``: the
+    rendered check (``bench_artist.bench_nodes_render``, needs Blender: the bpy module, or
+    Debian's ``blender -b`` with ``--python-expr``, arguments after ``--``)."""
+    import json
+
     import samples
+
+    from ..script_args import script_args
+
+    argv = script_args() if argv is None else list(argv)
 
     def option(name):
         if name in argv:
@@ -146,14 +159,19 @@ def main(argv):
         return None
 
     reuse, write = option("--reuse"), option("--write")
+    names = [a for a in argv if not a.startswith("--")]
     if "--render" in argv:
-        names = [a for a in argv if not a.startswith("--")]
-        from .bench_artist import RENDER_NAMES, bench_nodes_render
+        from .bench_artist import RENDER_NAMES, bench_nodes_render, render_cases
 
-        bench_nodes_render(eevee="--eevee" in argv, names=names or RENDER_NAMES, demo=not names)
+        known = {}
+        if reuse:
+            with open(reuse) as fh:
+                known = {(d["name"], d["edit"]): d["bound"] for d in map(json.loads, fh)}
+        with open(write, "a") if write else contextlib.nullcontext() as sink:
+            cases = render_cases(names or RENDER_NAMES, not names, "--under-bound" in argv, known, sink)
+        bench_nodes_render(eevee="--eevee" in argv, cases=cases, model="--model" in argv)
         return
     quick = "--quick" in argv
-    names = [a for a in argv if not a.startswith("--")]
     if not names:
         names = list(QUICK) if quick else samples.measured_names()
     bench_nodes(names, principled="--no-principled" not in argv, reuse=reuse, write=write)

@@ -23,5 +23,6 @@ from addon.blender import material  # noqa: E402
 os.makedirs(OUT, exist_ok=True)
 err = render_errors(bpy, material, os.path.join(OUT, "stretched.exr"))
 kinds = render_errors(bpy, material, os.path.join(OUT, "kinds.exr"), case="kinds")
+in_plane = render_errors(bpy, material, os.path.join(OUT, "in-plane.exr"), case="in the plane")
 with open(os.path.join(OUT, "stretched.json"), "w") as fh:
-    json.dump({"blender": bpy.app.version_string, "errors": err, "kinds": kinds}, fh)
+    json.dump({"blender": bpy.app.version_string, "errors": err, "kinds": kinds, "in_plane": in_plane}, fh)

@@ -681,6 +681,14 @@ def session():
     yield 3.0
     record("apply_lobes", status=status, message=message, job=last_job(), shot=screenshot("lobes-rendered"))
     yield from panel_shot("lobes-applied")
+    # Issue 37.4: the panel's Find the Bound (a background job, node_bound) then puts the bound
+    # beside the error; the rendered material and the sidebar stating both in one screenshot.
+    status, message = run_op(bpy.ops.brdf_moments.node_bound, "INVOKE_DEFAULT", material=MAT)
+    yield from wait_jobs()
+    redraw()
+    yield 3.0
+    record("bound_lobes", status=status, message=message, job=last_job(), shot=screenshot("lobes-bound"))
+    yield from panel_shot("lobes-bound")
     space.shading.type = shading
     status, message = run_op(bpy.ops.brdf_moments.restore_material, material=MAT)
     yield 0.3

@@ -24,9 +24,11 @@ measured at views between the texels, where that interpolation shows.
 The fit: for every texel view, the weights are non-negative least squares of the table against
 the lobes (cosine-weighted, through the half vector on the table's own theta_h cells, as
 ``core.material.principled``), with the view's directional albedo as one extra, strongly weighted
-equation, so that the energy the artist sees per view is the table's. The roughness of the
-lobes is picked greedily from a dictionary (the one that lowers the cost most, then the next),
-the cost summed over views with each view's share of a sphere's pixels.
+equation, so that the energy the artist sees per view is the table's; the diffuse colour is
+capped at twice pi times the table's median at that view (``DIFFUSE_QUANTILE``: a metal has no
+flat part to lend it). The roughness of the lobes is picked greedily from a dictionary (the
+one that lowers the cost most, then the next), the cost summed over views with each view's
+share of a sphere's pixels.
 
 A lobe may also be stretched across the plane of incidence, by an aspect q_k(theta_o) read
 from the lookup like the colours (alpha sqrt(q) across, alpha / sqrt(q) in the plane; the
@@ -55,6 +57,17 @@ N_PHI_H = 24
 DICTIONARY = tuple(float(v) for v in np.exp(np.linspace(np.log(0.02), np.log(1.0), 16)))
 ERROR_VIEWS_DEG = tuple(range(0, 81, 5))  # where the error is measured (between texels)
 ALBEDO_WEIGHT = 30.0  # the albedo equation's weight against the BRDF residual's norm
+# The diffuse colour's cap per view: DIFFUSE_OVER times pi times the table's DIFFUSE_QUANTILE
+# (cosine weighted) there. A Lambert term is flat over the light's directions; far above the
+# table's usual value it adds light wherever the table has next to none, which the BRDF's L2
+# error (ruled by the peak) hardly sees but a sphere under a map's lights far from the mirror
+# direction shows (issue 37.2: ilm_l3_37_metallic's diffuse colour 0.14 against a median of
+# 0.02, its sphere 2-4 times too bright where it mirrors dark walls). A diffuse material's
+# colour stays free (its table is flat: the median is about its colour), and the margin leaves
+# the greedy pick room to let the diffuse stand in for a broad lobe still to come (at 1x it
+# missed the dictionary's own two-lobe tables).
+DIFFUSE_QUANTILE = 0.5
+DIFFUSE_OVER = 2.0
 # A lobe's aspect q per view: its alpha across the plane of incidence over its alpha in it,
 # alpha_across = alpha sqrt(q), alpha_in = alpha / sqrt(q) (both Blenders keep alpha_x alpha_y =
 # alpha²). A lobe round about the mirror direction, as measured highlights often are, is
@@ -119,6 +132,11 @@ class LobeFit:
             object.__setattr__(self, "kinds", (GGX,) * len(self.roughness))
         if len(self.kinds) != len(self.roughness) or any(k not in KINDS for k in self.kinds):
             raise ValueError(f"lobe kinds must be one of {KINDS} per lobe")
+
+    @property
+    def has_diffuse(self) -> bool:
+        """Whether the diffuse colour is above black at some view (the nodes draw a Diffuse BSDF)."""
+        return bool(np.any(np.asarray(self.weights)[0] > 0.0))
 
     @property
     def anisotropic(self) -> bool:
@@ -324,23 +342,37 @@ def _nnls_gram(G, b):
     return x
 
 
-def _nnls_capped(G, b, capped, cap):
-    """min x.G.x - 2 x.b over x >= 0 with x <= cap where ``capped``: the largest unknown over its
-    cap held at it and the rest solved again, until none is over (exact for one capped unknown:
-    the cost minimised over the others is convex in it)."""
+def _nnls_capped(G, b, cap):
+    """min x.G.x - 2 x.b over 0 <= x <= cap (per unknown, inf: no cap): the unknown furthest
+    over its cap held at it and the rest solved again, until none is over (exact for one capped
+    unknown: the cost minimised over the others is convex in it)."""
     n = len(b)
+    cap = np.broadcast_to(np.asarray(cap, float), (n,))
+    capped = np.isfinite(cap)
     held = np.zeros(n, bool)
     x = np.zeros(n)
-    capped = np.asarray(capped, bool)
     for _ in range(int(capped.sum()) + 1):
         free = ~held
+        if not free.any():  # scipy's nnls crashes on an empty problem
+            break
         x[free] = _nnls_gram(G[np.ix_(free, free)], b[free] - G[np.ix_(free, held)] @ x[held])
         over = capped & ~held & (x > cap)
         if not over.any():
             break
-        k = int(np.flatnonzero(over)[np.argmax(x[over])])
-        held[k], x[k] = True, cap
+        k = int(np.flatnonzero(over)[np.argmax((x - cap)[over])])
+        held[k], x[k] = True, cap[k]
     return x
+
+
+def _quantile(rho, w, q):
+    """Per channel, the value of ``rho`` (3, n) at cumulative weight ``q`` of ``w`` (n,)."""
+    out = np.zeros(len(rho))
+    for c, v in enumerate(rho):
+        order = np.argsort(v, kind="stable")
+        cum = np.cumsum(w[order])
+        if len(v):
+            out[c] = v[order][min(int(np.searchsorted(cum, q * cum[-1])), len(v) - 1)]
+    return out
 
 
 class _View:
@@ -348,15 +380,18 @@ class _View:
     albedo equation folded in. ``with_lobes`` makes them again for other lobes, the table's
     values at the quadrature kept."""
 
-    def __init__(self, deg, wi, wo, w, rho, shadowing, dictionary, aspects=(1.0,)):
+    def __init__(self, deg, wi, wo, w, rho, shadowing, dictionary, aspects=(1.0,), diffuse_quantile=DIFFUSE_QUANTILE):
         self.deg, self.wo, self.shadowing = deg, wo, shadowing
         self.wi, self.w, self.rho = wi, w, rho
         self.share = pixel_share(deg)
+        q = diffuse_quantile
+        self.diffuse_cap = np.full(3, np.inf) if q is None else DIFFUSE_OVER * np.pi * _quantile(rho, w, q)
         self._normal_equations(dictionary, aspects)
 
     def with_lobes(self, lobes, aspects):
         other = object.__new__(_View)
-        other.__dict__.update({k: self.__dict__[k] for k in ("deg", "wo", "shadowing", "wi", "w", "rho", "share")})
+        keep = ("deg", "wo", "shadowing", "wi", "w", "rho", "share", "diffuse_cap")
+        other.__dict__.update({k: self.__dict__[k] for k in keep})
         other._normal_equations(lobes, aspects)
         return other
 
@@ -395,7 +430,11 @@ class _View:
         H[3 * no :, 3 * no :] = 3.0 * G[np.ix_(shared, shared)]
         b[3 * no :] = self.ra[:, shared].sum(axis=0)
         H = H + 1e-10 * np.trace(H) / n * np.eye(n)
-        z = _nnls_capped(H, b, np.arange(n) >= 3 * no, FRESNEL_MAX)
+        cap = np.full(n, np.inf)
+        cap[3 * no :] = FRESNEL_MAX
+        if 0 in own:
+            cap[own.index(0) : 3 * no : no] = self.diffuse_cap
+        z = _nnls_capped(H, b, cap)
         x = np.zeros((3, len(idx)))
         x[:, np.flatnonzero(~grey)] = z[: 3 * no].reshape(3, no)
         x[:, np.flatnonzero(grey)] = z[3 * no :][None, :]
@@ -405,24 +444,26 @@ class _View:
 def _cost_fn(vs, capped_cols=None):
     """The pixel-share weighted cost per view of a set of columns per view, for the channels'
     sum (a quick stand-in for the three channels while lobes are chosen); the columns flagged in
-    ``capped_cols`` (Fresnel lobes, one weight for the three channels) capped at 3 FRESNEL_MAX."""
+    ``capped_cols`` (Fresnel lobes, one weight for the three channels) capped at 3 FRESNEL_MAX,
+    the diffuse (column 0) at the sum of its caps per channel."""
     Ga = np.stack([v.Ga for v in vs])  # (V, M, M)
     ra = np.stack([v.ra.sum(axis=0) for v in vs])  # (V, M)
     yy = np.array([v.yya.sum() for v in vs])
     rows = np.arange(len(vs))[:, None]
     capped_cols = np.zeros(Ga.shape[1], bool) if capped_cols is None else np.asarray(capped_cols, bool)
-    cap = 3.0 * FRESNEL_MAX
+    col_cap = np.where(capped_cols, 3.0 * FRESNEL_MAX, np.inf)[None, :].repeat(len(vs), axis=0)  # (V, M)
+    col_cap[:, 0] = [float(np.sum(v.diffuse_cap)) for v in vs]
 
     def costs(cols, constrained=True):
         """Per view; ``constrained=False``: without the bounds, a lower bound on the cost."""
         G = Ga[rows[:, :, None], cols[:, :, None], cols[:, None, :]]
         G = G + (1e-10 * np.trace(G, axis1=1, axis2=2) / cols.shape[1])[:, None, None] * np.eye(cols.shape[1])
         b = ra[rows, cols]
-        capped = capped_cols[cols]  # (V, m)
+        cap = col_cap[rows, cols]  # (V, m)
         x = np.linalg.solve(G, b[:, :, None])[:, :, 0]  # unconstrained first: usually feasible
         if constrained:
-            for m in np.flatnonzero((x < 0.0).any(axis=1) | (capped & (x > cap)).any(axis=1)):
-                x[m] = _nnls_capped(G[m], b[m], capped[m], cap)
+            for m in np.flatnonzero((x < 0.0).any(axis=1) | (x > cap).any(axis=1)):
+                x[m] = _nnls_capped(G[m], b[m], cap[m])
         return np.einsum("vi,vij,vj->v", x, G, x) - 2.0 * np.sum(x * b, axis=1) + yy
 
     return costs
@@ -494,20 +535,33 @@ def fit_lobes(
     dictionary=DICTIONARY,
     aspects=ASPECTS,
     kinds=KINDS,
+    diffuse_quantile=DIFFUSE_QUANTILE,
 ) -> LobeFit:
     """Fit the model above to a MerlTable (missing cells left out). One set of lobes (kind and
     roughness, picked among ``kinds`` × ``dictionary``) serves every view (a roughness picked
     per view was measured too: no gain, issue 28); each Glossy lobe's aspect may change from
     view to view (``aspects=(1.0,)``: isotropic lobes). Lobes whose weight is 0 at every view
-    are dropped (the node tree draws no closure for them)."""
+    are dropped (the node tree draws no closure for them). The diffuse colour is capped per view
+    at DIFFUSE_OVER pi times the table's ``diffuse_quantile`` there (None: no cap)."""
     from ..limits import check
 
     n_lobes, n_views = check("lobes", n_lobes, "n_lobes"), check("lookup_texels", n_views, "n_views")
     samples = list(_table_at_views(table, texel_views_deg(n_views)))
-    return _fit_samples(samples, n_lobes, shadowing, n_views, dictionary, aspects, kinds, table)
+    return _fit_samples(samples, n_lobes, shadowing, n_views, dictionary, aspects, kinds, table, None, diffuse_quantile)
 
 
-def _fit_samples(samples, n_lobes, shadowing, n_views, dictionary, aspects, kinds, table=None, error_samples=None):
+def _fit_samples(
+    samples,
+    n_lobes,
+    shadowing,
+    n_views,
+    dictionary,
+    aspects,
+    kinds,
+    table=None,
+    error_samples=None,
+    diffuse_quantile=DIFFUSE_QUANTILE,
+):
     if shadowing not in SHADOWING:
         raise ValueError(f"unknown shadowing {shadowing!r}")
     if not kinds or any(k not in KINDS for k in kinds):
@@ -516,7 +570,7 @@ def _fit_samples(samples, n_lobes, shadowing, n_views, dictionary, aspects, kind
     if 1.0 not in aspects or any(not ASPECT_RANGE[0] <= q <= ASPECT_RANGE[1] for q in aspects):
         raise ValueError(f"aspects must hold 1 and lie in {ASPECT_RANGE}")
     lobes_all = [(kind, r) for kind in kinds for r in dictionary]
-    vs = [_View(*at, shadowing, lobes_all) for at in samples]
+    vs = [_View(*at, shadowing, lobes_all, diffuse_quantile=diffuse_quantile) for at in samples]
     fres_cols = np.array([False] + [kind == FRESNEL for kind, _ in lobes_all])
     # The lobes among round ones, then each Glossy lobe's aspect per view (the first texel stays
     # round: at normal view the plane of incidence, the lobe's tangent, is undefined).

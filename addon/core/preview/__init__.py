@@ -21,13 +21,22 @@ Public API
     path's texture. ``render_baked(layout, brdfs, env, ...)``: the image it shows.
 ``render_reference(layout, brdfs, env, spp, seed)``: the converged Monte Carlo ground truth.
 ``relative_rmse(image, reference, mask)`` (per pixel) and ``normalized_rmse`` (RMSE / RMS):
-    the error measures of the benchmarks.
+    the error measures of the benchmarks; ``lit_pixel_errors`` (per pixel, over the pixels
+    holding 5 % of the sphere's peak: the artist's material's render check).
 ``BakeCache``: bakes by content (material, map, resolution, settings).
 """
 
 from .cache import BakeCache, bake_key
 from .envmap import Environment, direction_to_uv, uv_to_direction
-from .estimators import bake_sphere, normalized_rmse, reference_sphere, relative_rmse, render_baked, render_reference
+from .estimators import (
+    bake_sphere,
+    lit_pixel_errors,
+    normalized_rmse,
+    reference_sphere,
+    relative_rmse,
+    render_baked,
+    render_reference,
+)
 from .lobe import (
     HalfVectorSampler,
     LobeTable,
@@ -50,6 +59,7 @@ __all__ = [
     "bake_sphere",
     "reference_sphere",
     "relative_rmse",
+    "lit_pixel_errors",
     "normalized_rmse",
     "render_baked",
     "render_reference",

@@ -330,3 +330,20 @@ def normalized_rmse(image, reference, mask):
     a = np.asarray(image, float)[mask][:, :3]
     r = np.asarray(reference, float)[mask][:, :3]
     return float(np.sqrt(np.mean((a - r) ** 2)) / max(np.sqrt(np.mean(r * r)), 1e-300))
+
+
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709, as the environment's sampler weighs
+
+
+def lit_pixel_errors(image, reference, mask, share=0.05):
+    """Per-pixel relative error |x - r| / |r| (RGB vectors) over the masked pixels whose reference
+    luminance is at least ``share`` of the brightest masked pixel's; returns (errors, count).
+    Pixels far darker than the sphere's peak carry noise and stray light as large relative
+    errors that no one sees on a tone-mapped image (issue 37.2); and a colour's dark channel
+    (paper_blue's red) counts by its part of the pixel, not by its own ratio."""
+    lum = np.asarray(reference, float)[..., :3] @ LUMINANCE
+    peak = float(lum[mask].max()) if np.any(mask) else 0.0
+    lit = mask & (lum >= share * peak) & (lum > 0.0)
+    a = np.asarray(image, float)[lit][:, :3]
+    r = np.asarray(reference, float)[lit][:, :3]
+    return np.linalg.norm(a - r, axis=1) / np.linalg.norm(r, axis=1), int(lit.sum())
