@@ -60,3 +60,18 @@ def test_no_lobe_fit_states_less_than_the_bound(name):
     bound = B.node_bound(table)
     fit = L.fit_lobes(table)
     assert 0.0 <= bound <= fit.error + 1e-9
+
+
+@pytest.mark.parametrize("shadowing", ["correlated", "separable"])
+def test_every_shape_is_a_closure_that_adds_light(shadowing):
+    """A node tree mixes closures with non-negative weights, and no closure draws less than
+    nothing: every shape the bound ranges over is non-negative at every light direction and
+    view (a basis of either sign, as the bound had before, reaches tables no setup draws)."""
+    rng = np.random.default_rng(7)
+    v = rng.normal(size=(4000, 3))
+    wi = v / np.linalg.norm(v, axis=1, keepdims=True)
+    wi[:, 2] = np.abs(wi[:, 2])
+    for deg in (0.0, 30.0, 60.0, 85.0):
+        t = np.radians(deg)
+        F = B.closure_shapes(wi, np.array([np.sin(t), 0.0, np.cos(t)]), shadowing)
+        assert F.shape[1] == len(wi) and np.all(np.isfinite(F)) and F.min() >= 0.0, deg

@@ -11,20 +11,23 @@ holds, at 18 roughness values from 0.01 to 1 (those of ``lobes.DICTIONARY`` amon
 - Lambert (Diffuse, every Blender);
 - GGX and Beckmann reflection (Glossy, Anisotropic), round and stretched across or along the
   plane of incidence (aspects 0.5 to 6, those of ``lobes.ASPECTS`` among them);
-- the same two, round, times Schlick's (1 - wi.h)^5, and of either sign times 4.x's F82 term
-  (wi.h)(1 - wi.h)^6, (wi.h) and (wi.h)²: with the plain lobe they span the Fresnel factor of
-  every Principled specular and metal layer, and smooth changes of it with theta_d (a thin
-  film's, for one);
+- the same two, round, times the Fresnel factors of theta_d Blender's layers draw: in 4.x the
+  metal's (Schlick's with a white F82 tint, and its deepest dip with a black one) and the
+  dielectric specular's (IOR 1.1, 1.5, 1.8); in 3.x Principled v1's normalised dielectric
+  factor at those IORs (the fit's Fresnel lobe among them);
 - Ashikhmin-Shirley (Glossy);
 - 3.4's Velvet (Ashikhmin's velvet, 6 widths) and 3.x's Principled sheen (1 - wi.h)^5;
-- 3.4's Oren-Nayar term and 4.x's (Fujii's) s/t term, and the retro-reflection terms of 3.x's
-  Principled diffuse ((1 - cos theta_i)^5 times 1, (wi.h)², (wi.h)^4, and (wi.h)² alone),
-  the diffuse ones of either sign;
+- Diffuse with roughness (the classic Oren-Nayar at its roughest, Fujii's at roughness 1: with
+  Lambert they span every roughness) and 3.x's Principled diffuse at five roughness values;
 - Toon Glossy cones about the mirror direction (14 sizes from 0.5° to 60°), whose mix is any
   radial profile.
 
-Shapes of either sign relax the bound (a setup cannot subtract them) and only lower it. Not
-held: 4.x's Sheen (a tabulated fit) and the Multiscatter GGX's added energy; parameters between
+Every shape is a closure's own, non-negative, and a mix adds them with non-negative weights:
+the bound is what a node tree of these closures reaches, not less. (Until 12-07 the Fresnel
+and diffuse terms entered as a basis of either sign, mu (1 - mu)^6, mu, mu² times a lobe: a
+signed combination draws a lobe dimmer than zero in places, which no closure does, and it
+put the bound 6-20 points under any setup on broad edited tables, bench_nodes.) Not held: 4.x's
+Sheen (a tabulated fit), its thin film, the Multiscatter GGX's added energy; parameters between
 the grid's values (a mix of its neighbours comes close). The bound is per view at
 ``lobes.ERROR_VIEWS_DEG`` on ``lobes.measure``'s quadrature, so it is directly comparable with
 a fit's stated error: ``lobes.fit_lobes`` never states less (bench_nodes: none of 236 tables).
@@ -44,7 +47,7 @@ from .principled import pixel_share
 # Blender roughness (alpha = r²) and aspects: the fit's own grids, widened, so that the fit's
 # lobes are among the shapes
 ROUGHNESS = (0.01, 0.014) + lobes.DICTIONARY
-ASPECTS = (0.5, 0.7) + lobes.ASPECTS + (6.0,)
+ASPECTS = lobes.ASPECTS + (6.0,)  # 0.5 to 6
 VELVET_SIGMA = (0.1, 0.2, 0.35, 0.5, 0.7, 1.0)
 TOON_SIZES_DEG = tuple(float(v) for v in np.geomspace(0.5, 60.0, 14))
 
@@ -78,59 +81,72 @@ def velvet(sigma, wi, wo):
     return velvet_distribution(sigma, nh) * g / (4.0 * ci * co)
 
 
+F82_MU = 1.0 / 7.0  # where mu (1 - mu)^6 peaks: 4.x's F82 tint sets the metal's Fresnel there
+DIELECTRIC_IOR = (1.1, 1.5, 1.8)  # a Principled specular layer over a black base (3.x: up to 1.8)
+
+
 def closure_shapes(wi, wo, shadowing="correlated"):
-    """The shapes at directions ``wi`` (n, 3) for one view ``wo`` (3,): (rows (m, n), signed (m,)
-    True where the row may enter with either sign)."""
+    """The shapes at directions ``wi`` (n, 3) for one view ``wo`` (3,): rows (m, n), each a closure
+    Blender draws (its colour or a Mix Shader's factor the weight), so each is non-negative and
+    a mix is a non-negative sum of them. ``shadowing``: the Blender, as ``lobes.shadowing_for``
+    names it ("correlated": 4.x, "separable": 3.x)."""
     wo_b = np.broadcast_to(wo, wi.shape)
     h = wi + wo_b
     h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-    hd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
-    schlick, f82 = (1.0 - hd) ** 5, hd * (1.0 - hd) ** 6
+    mu = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)  # cos theta_d
+    schlick = (1.0 - mu) ** 5
+    dielectric = [lobes._fresnel_dielectric(mu, eta) for eta in DIELECTRIC_IOR]
+    if shadowing == "correlated":
+        # 4.x: the metal's F82-tint Fresnel F0 + (1 - F0)(1 - mu)^5 - b mu (1 - mu)^6 spans,
+        # with the plain lobe, Schlick's (black base, white tint) and the deepest dip (white
+        # base, black tint: zero at F82_MU); the specular layer over a black base, dielectric
+        fresnel = [schlick, 1.0 - mu * (1.0 - mu) ** 6 / (F82_MU * (1.0 - F82_MU) ** 6)] + dielectric
+    else:
+        # 3.x: Principled v1 normalises the dielectric Fresnel, (F - F0) / (1 - F0), for its
+        # metal and its specular alike (``lobes.fresnel_factor`` at 1.5)
+        fresnel = []
+        for eta in DIELECTRIC_IOR:
+            f0 = float(lobes._fresnel_dielectric(np.array(1.0), eta))
+            fresnel.append((lobes._fresnel_dielectric(mu, eta) - f0) / (1.0 - f0))
     ci, co = np.clip(wi[:, 2], 1e-9, 1.0), float(np.clip(wo[2], 1e-9, 1.0))
-    rows, signed = [np.full(len(wi), 1.0 / np.pi)], [False]
-
-    def add(row, either=False):
-        rows.append(row)
-        signed.append(either)
-
+    lambert = np.full(len(wi), 1.0 / np.pi)
+    rows = [lambert]
     q = np.asarray(ASPECTS, float)[:, None]
     for r in ROUGHNESS:
         for dist in ("ggx", "beckmann"):
             stretched = np.broadcast_to(microfacet_lobe(dist, r * r, wi, wo_b, shadowing, q), (len(q), len(wi)))
-            for row in stretched:
-                add(row)
-            lobe = stretched[ASPECTS.index(1.0)]  # the round lobe
-            add(lobe * schlick)
-            for fresnel in (f82, hd, hd * hd):
-                add(lobe * fresnel, either=True)
-        add(ashikhmin_shirley(r * r, wi, wo_b))
-    for s in VELVET_SIGMA:
-        add(velvet(s, wi, wo_b))
-    add(schlick)  # 3.x Principled sheen
-    # diffuse terms: Oren-Nayar (3.4), Fujii's s / t (4.x), Principled v1's retro-reflection
+            rows.extend(stretched)
+            lobe = stretched[ASPECTS.index(1.0)]  # Fresnel layers are round
+            rows.extend(lobe * f for f in fresnel)
+        rows.append(ashikhmin_shirley(r * r, wi, wo_b))
+    rows.extend(velvet(s, wi, wo_b) for s in VELVET_SIGMA)
+    rows.append(schlick)  # 3.x Principled sheen
+    # Diffuse BSDF with roughness: the classic Oren-Nayar at sigma -> inf (A 0.5, B 0.45) and
+    # Fujii's at roughness 1 (A = B), each with Lambert spanning every roughness between
     ti, to = np.arccos(ci), math.acos(co)
     cos_dphi = np.cos(np.arctan2(wi[:, 1], wi[:, 0]) - math.atan2(wo[1], wo[0]))
-    add(np.maximum(cos_dphi, 0.0) * np.sin(np.maximum(ti, to)) * np.tan(np.minimum(ti, to)) / np.pi)
+    oren_nayar = np.maximum(cos_dphi, 0.0) * np.sin(np.maximum(ti, to)) * np.tan(np.minimum(ti, to)) / np.pi
+    rows.append(0.5 * lambert + 0.45 * oren_nayar)
     s = wi @ wo - ci * co
-    add(np.where(s > 0.0, s / np.maximum(ci, co), s) / np.pi, either=True)
-    fl = (1.0 - ci) ** 5
-    for row in (fl, fl * hd**2, fl * hd**4, hd**2):
-        add(row, either=True)
+    rows.append(lambert + np.where(s > 0.0, s / np.maximum(ci, co), s) / np.pi)
+    # 3.x Principled diffuse: (1 + (FD90 - 1) FL)(1 + (FD90 - 1) FV), FD90 = 0.5 + 2 r mu²
+    fl, fv = (1.0 - ci) ** 5, (1.0 - co) ** 5
+    for rough in (0.0, 0.25, 0.5, 0.75, 1.0):
+        fd90 = 0.5 + 2.0 * rough * mu * mu
+        rows.append(lambert * (1.0 + (fd90 - 1.0) * fl) * (1.0 + (fd90 - 1.0) * fv))
     mirror = np.array([-wo[0], -wo[1], wo[2]])
     angle = np.degrees(np.arccos(np.clip(wi @ mirror, -1.0, 1.0)))
-    for size in TOON_SIZES_DEG:
-        add((angle < size) / ci)
-    return np.stack(rows), np.array(signed)
+    rows.extend((angle < size) / ci for size in TOON_SIZES_DEG)
+    return np.stack(rows)
 
 
 def node_bound(table, views_deg=ERROR_VIEWS_DEG, shadowing="correlated"):
     """The least BRDF error (``lobes.measure``'s weighting) any view-dependent mix of
     ``closure_shapes`` reaches on ``table``: per view and channel, non-negative least squares
-    (signed shapes doubled), the residuals pooled as ``measure`` pools them."""
+    the residuals pooled as ``measure`` pools them."""
     num = den = 0.0
     for deg, wi, wo, w, rho in _table_at_views(table, views_deg):
-        F, signed = closure_shapes(wi, wo, shadowing)
-        F = np.concatenate([F, -F[signed]])
+        F = closure_shapes(wi, wo, shadowing)
         # each shape scaled to unit norm: sharp lobes are 1e6 times a diffuse term, and the
         # normal equations would lose the small shapes to rounding
         F = F / np.maximum(np.sqrt((F * F) @ w), 1e-300)[:, None]
