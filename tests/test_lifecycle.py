@@ -25,7 +25,8 @@ def check_cycle(result):
     assert after["jobs"] == [] and after["history"] == "unregistered"
     assert not after["child_alive"] and after["child_exitcode"] is not None
     assert after["wm_timers"] == 0 and after["progress_end"]  # the window manager got its timer back
-    assert after["reports"] == [] and after["posted_after"] == 0  # nothing finished, nothing posted
+    # nothing finished, nothing posted once unregister began (the draft may come before it)
+    assert after["reports"] == [] and after["posted_after"] == 0
     assert not after["property"]
     assert result["unregister_seconds"] < 45
     # registered again, the add-on works

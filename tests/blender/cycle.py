@@ -123,6 +123,9 @@ def run(bpy, module, merl, out):
         "child_alive": bool(op._proc is not None and op._proc.is_alive()),
     }
     proc = op._proc
+    # the live work may already have posted its draft (0.3-0.5 s quiet since the synthesis reads
+    # only the horizon band): what counts is that nothing is posted once unregister has begun
+    posted_before = len(posted)
     t0 = time.monotonic()
     addon_utils.disable(module, default_set=False)
     result["unregister_seconds"] = round(time.monotonic() - t0, 2)
@@ -141,7 +144,7 @@ def run(bpy, module, merl, out):
         "wm_timers": ctx.window_manager.timers,
         "progress_end": ctx.window_manager.progress[-1:] == ["end"],
         "reports": op.reports,
-        "posted_after": len(posted),
+        "posted_after": len(posted) - posted_before,
     }
     addon_utils.enable(module, default_set=False)
     mat = bpy.data.materials["cycle"]

@@ -83,6 +83,8 @@ def work(table, targets, prof, fit, env, diameter, stale=lambda: False, post=lam
         if stale():
             return
         rgb, cov = bake_sphere(TableBRDF(new, prof), env, max(diameter // LIVE_DIAMETER_DIV, 8), LIVE_SAMPLES, 0)
+        if stale():  # made moot while baking: nothing is posted once stale (unregister, a newer move)
+            return
         post("live", rgb, cov)
         if stale():
             return
@@ -92,4 +94,5 @@ def work(table, targets, prof, fit, env, diameter, stale=lambda: False, post=lam
     if stale():
         return
     rgb, cov = bake_sphere(TableBRDF(new, prof), env, diameter, FINAL_SAMPLES, 0)
-    post("refined", rgb, cov)
+    if not stale():
+        post("refined", rgb, cov)
