@@ -145,6 +145,7 @@ def test_the_session_ran_to_the_end_without_a_traceback(lane):
         "apply_quiet",
         "apply_cancelled_live",
         "apply_lobes",
+        "bound_lobes",
         "restore_lobes",
     ]
 

@@ -677,6 +677,11 @@ def session():
     space = area("VIEW_3D").spaces.active
     shading = space.shading.type
     space.shading.type = "RENDERED"
+    # the object in view, whole (the session's earlier steps may leave the view inside the cube)
+    view = space.region_3d
+    kept_view = (view.view_location.copy(), view.view_distance)
+    view.view_location = (0.0, 0.0, 0.0)
+    view.view_distance = 9.0
     redraw()
     yield 3.0
     record("apply_lobes", status=status, message=message, job=last_job(), shot=screenshot("lobes-rendered"))
@@ -690,6 +695,7 @@ def session():
     record("bound_lobes", status=status, message=message, job=last_job(), shot=screenshot("lobes-bound"))
     yield from panel_shot("lobes-bound")
     space.shading.type = shading
+    view.view_location, view.view_distance = kept_view
     status, message = run_op(bpy.ops.brdf_moments.restore_material, material=MAT)
     yield 0.3
     record("restore_lobes", status=status, message=message)
