@@ -177,7 +177,7 @@ def _calls(c):
         # the artist's material
         "addon.core.material.lobes.fit_lobes": (
             lambda **k: M.fit_lobes(c.table, **k),
-            {"n_lobes": "lobes", "n_views": "lookup_texels"},
+            {"n_lobes": "lobes", "n_views": "lookup_texels", "diffuse_quantile": "share"},
         ),
         "addon.core.material.lobes.near_mirror_floor": (
             lambda **k: M.near_mirror_floor(c.table, **k),
@@ -246,6 +246,10 @@ def _calls(c):
         "addon.core.preview.lobe.truncated_params": (
             lambda **k: P.truncated_params(0.1, 0.05, **k),
             {"iters": "iterations"},
+        ),
+        "addon.core.preview.estimators.lit_pixel_errors": (
+            lambda **k: P.lit_pixel_errors(np.ones((4, 4, 3)), np.ones((4, 4, 3)), np.ones((4, 4), bool), **k),
+            {"share": "share"},
         ),
         "addon.core.preview.scene.sphere_layout": (
             lambda **k: P.sphere_layout(**{"width": 64, **k}),

@@ -549,6 +549,8 @@ def fit_lobes(
     from ..limits import check
 
     n_lobes, n_views = check("lobes", n_lobes, "n_lobes"), check("lookup_texels", n_views, "n_views")
+    if diffuse_quantile is not None:
+        diffuse_quantile = check("share", diffuse_quantile, "diffuse_quantile")
     samples = list(_table_at_views(table, texel_views_deg(n_views)))
     return _fit_samples(samples, n_lobes, shadowing, n_views, dictionary, aspects, kinds, table, None, diffuse_quantile)
 

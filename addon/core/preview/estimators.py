@@ -341,6 +341,7 @@ def lit_pixel_errors(image, reference, mask, share=0.05):
     Pixels far darker than the sphere's peak carry noise and stray light as large relative
     errors that no one sees on a tone-mapped image (issue 37.2); and a colour's dark channel
     (paper_blue's red) counts by its part of the pixel, not by its own ratio."""
+    share = check("share", share)
     lum = np.asarray(reference, float)[..., :3] @ LUMINANCE
     peak = float(lum[mask].max()) if np.any(mask) else 0.0
     lit = mask & (lum >= share * peak) & (lum > 0.0)
