@@ -34,10 +34,9 @@ def render_errors(bpy, material, exr_path, case="stretched"):
     lobes), the model's error under "model"."""
     from addon.blender.preview import render_still
     from addon.blender.preview import scene as sc
-    from addon.core.file.merl import tabulate
     from addon.core.material import lobes as L
-    from addon.core.preview import TableBRDF, bake_sphere, relative_rmse, sphere_layout
-    from addon.core.profiles.compute import compute_profiles
+    from addon.core.preview import bake_sphere, relative_rmse, sphere_layout
+    from addon.tools.bench_artist import lobes_bake_brdf
     from addon.tools.bench_preview import _environment, _read_exr
 
     n = L.N_VIEWS
@@ -55,28 +54,12 @@ def render_errors(bpy, material, exr_path, case="stretched"):
     if case == "kinds":
         fit, others = _kinds_case(L, shadowing)
 
-    class Model(TableBRDF):
-        """The model evaluated exactly; its own table only guides the sampling."""
-
-        def __init__(self, f):
-            self.f = f
-            t = tabulate(lambda wi, wo: L.lobes_brdf(f, wi.reshape(-1, 3), wo.reshape(-1, 3)))
-            super().__init__(t, compute_profiles(t, max_order=2))
-
-        def evaluate(self, theta, phi, theta_o):
-            th, ph, to = np.broadcast_arrays(*(np.asarray(v, float) for v in (theta, phi, theta_o)))
-            # the light's direction in the view's frame, as merl.cell_indices_view reads (theta, phi)
-            wi = np.stack([np.sin(th) * np.cos(ph), np.sin(ph), np.cos(th) * np.cos(ph)], -1).reshape(-1, 3)
-            wo = np.stack([np.sin(to), np.zeros_like(to), np.cos(to)], -1).reshape(-1, 3)
-            v = np.where(wi[:, 2:3] > 0.0, L.lobes_brdf(self.f, wi, wo).T, 0.0)
-            return v.reshape(th.shape + (3,))
-
     env, env_path = _environment(bpy)
     layout = sphere_layout(SIZE, SIZE, 1)
     mask = layout.interior_mask()
     refs = {}
     for name, f in (("model", fit), *others.items()):
-        rgb, cov = bake_sphere(Model(f), env, layout.diameter, SAMPLES, 3)
+        rgb, cov = bake_sphere(lobes_bake_brdf(f), env, layout.diameter, SAMPLES, 3)
         refs[name] = layout.compose([np.dstack([rgb * cov[..., None], cov])])
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene

@@ -246,7 +246,8 @@ TARGET = 0.10  # per pixel, where the table's node_bound is under it
 
 def lobes_bake_brdf(fit):
     """A LobeFit as the engine's bake takes a BRDF: evaluated exactly, sampled through the half
-    vector like a table (its own tabulation guides the sampler only; tests/_stretched.py's)."""
+    vector like a table (its own tabulation guides the sampler only); tests/_stretched.py renders
+    against it."""
     from ..core.file.merl import tabulate
     from ..core.material import lobes as L
     from ..core.preview import TableBRDF

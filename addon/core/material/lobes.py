@@ -267,9 +267,14 @@ def fresnel_factor(wi, wo, shadowing="correlated"):
         return (1.0 - c) ** 5
     if shadowing != "separable":
         raise ValueError(f"unknown shadowing {shadowing!r}")
-    ior = 2.0 / (1.0 - math.sqrt(0.08 * PRINCIPLED_3X_SPECULAR)) - 1.0
-    f0 = _fresnel_dielectric(np.array(1.0), ior)
-    return (_fresnel_dielectric(c, ior) - f0) / (1.0 - f0)
+    return principled_v1_factor(c, 2.0 / (1.0 - math.sqrt(0.08 * PRINCIPLED_3X_SPECULAR)) - 1.0)
+
+
+def principled_v1_factor(c, eta):
+    """Principled v1's (3.x) Fresnel factor at cos theta_d ``c``: the dielectric Fresnel of IOR
+    ``eta`` normalised to run from 0 at normal incidence to 1 at grazing, (F - F0) / (1 - F0)."""
+    f0 = _fresnel_dielectric(np.array(1.0), eta)
+    return (_fresnel_dielectric(c, eta) - f0) / (1.0 - f0)
 
 
 def _fresnel_dielectric(c, eta):

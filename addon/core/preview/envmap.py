@@ -18,6 +18,8 @@ import numpy as np
 from ..geometry import HALF_PI
 from ..limits import check
 
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec. 709 weights of a texel's light
+
 NEGATIVE_SHARE = 1e-3  # of a map's light; filtered HDRIs hold slight negatives (Blender's courtyard: -1.6e-4)
 
 
@@ -102,7 +104,7 @@ class Environment:
 
     # --- importance sampling (luminance x solid angle, with a uniform floor) ------------
     def _build_sampler(self):
-        lum = self.pixels @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+        lum = self.pixels @ LUMINANCE
         omega = np.broadcast_to(self.row_omega[:, None], lum.shape)
         energy = (lum * omega).ravel().astype(float)
         total = energy.sum()
@@ -143,7 +145,7 @@ class Environment:
         residual + bright = the map, texel by texel."""
         contrast = check("contrast", contrast, "contrast")
         if self._split is None:
-            lum = (self.flat @ np.array([0.2126, 0.7152, 0.0722], np.float32)).astype(float)
+            lum = (self.flat @ LUMINANCE).astype(float)
             omega = np.repeat(self.row_omega, self.width)
             limit = contrast * float(np.sum(lum * omega)) / (4.0 * math.pi)
             over = np.flatnonzero(lum > limit) if limit > 0 else np.zeros(0, np.int64)
@@ -220,7 +222,7 @@ class Environment:
         """Point set for E(n) = sum L max(0, n.d) omega: the brightest texels one by one (a sun
         stays sharp; up to ``bright_share`` of the energy) and the rest area-averaged onto a
         coarse grid (what is left is smooth, and so is the cosine)."""
-        lum = self.flat @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+        lum = self.flat @ LUMINANCE
         omega = np.repeat(self.row_omega, self.width)
         energy = lum * omega
         top = np.argsort(-energy)[:max_bright]

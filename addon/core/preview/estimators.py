@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from ..limits import check
+from .envmap import LUMINANCE
 from .lights import light_clusters
 from .scene import local_frames, sphere_points, texel_positions, touched_texels
 
@@ -330,9 +331,6 @@ def normalized_rmse(image, reference, mask):
     a = np.asarray(image, float)[mask][:, :3]
     r = np.asarray(reference, float)[mask][:, :3]
     return float(np.sqrt(np.mean((a - r) ** 2)) / max(np.sqrt(np.mean(r * r)), 1e-300))
-
-
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709, as the environment's sampler weighs
 
 
 def lit_pixel_errors(image, reference, mask, share=0.05):
