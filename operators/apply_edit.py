@@ -73,11 +73,10 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         scale = state.scale_to_one
         floor = state.floor
         shader = resolve_artist_shader(context, state.artist_shader)
-        from ..addon.core.material.lobes import ASPECTS, shadowing_for
+        from ..addon.core.material.lobes import closures_for, shadowing_for
 
         shadowing = shadowing_for(bpy.app.version)  # the Smith term this Blender's Cycles uses
-        # EEVEE draws every lobe round (it ignores anisotropy): for a scene it renders, round lobes
-        aspects = (1.0,) if context.scene.render.engine.startswith("BLENDER_EEVEE") else ASPECTS
+        closures = closures_for(context.scene.render.engine)  # EEVEE: round lobes, no Velvet
         # Content-addressed output: the same file and sliders give the same name, and an
         # edit never overwrites another material's table (or the input).
         st = os.stat(source)
@@ -142,7 +141,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             if shader in ("lobes", "approx"):
                 from ..addon.core.material.lobes import fit_lobes
 
-                principled = fit_lobes(res.table, shadowing=shadowing, aspects=aspects)
+                principled = fit_lobes(res.table, shadowing=shadowing, **closures)
             if shader in ("principled", "approx"):
                 from ..addon.core.material.principled import fit_principled
 

@@ -1,6 +1,6 @@
 """The check that Cycles renders a stretched lobe of ``core.material.lobes`` as the fit models it: one GGX
 lobe (roughness 0.3, white) stretched across the plane of incidence (aspect 3 past the first
-texel; and, as broad edits need, in it: aspect 1/3), put into a material by the add-on's ``apply_lobes``, on a sphere under Blender's studio
+texel; and, as broad edits need, in it: aspect 1/3; and the other kinds: Beckmann, Fresnel, Velvet), put into a material by the add-on's ``apply_lobes``, on a sphere under Blender's studio
 HDRI, against a converged numpy render of the model itself (``lobes_brdf``: a MERL table cannot
 hold it, its axes follow the view and a table is reciprocal), of the same lobe stretched in the
 plane, and of the round lobe. Run by the bpy-module tests and, in Debian's 3.4, by
@@ -27,11 +27,22 @@ def _kinds_case(L, shadowing):
     }
 
 
+def _velvet_case(L, shadowing):
+    """One Velvet (sigma 0.35, weight 0.8) over a dim diffuse (0.1); against the same at sigma 1
+    and with a GGX lobe of roughness 0.35 in its place."""
+    w = np.zeros((2, L.N_VIEWS, 3))
+    w[0], w[1] = 0.1, 0.8
+    return L.LobeFit((0.35,), w, shadowing, 0.0, 0.0, None, (L.VELVET,)), {
+        "sigma 1": L.LobeFit((1.0,), w, shadowing, 0.0, 0.0, None, (L.VELVET,)),
+        "GGX": L.LobeFit((0.35,), w, shadowing, 0.0, 0.0, None, (L.GGX,)),
+    }
+
+
 def render_errors(bpy, material, exr_path, case="stretched"):
     """Per-pixel relative RMSE of the render against the three references. ``case``:
     "stretched" (the stretched lobe above), "in the plane" (the same lobe stretched in the plane
-    of incidence: aspect 1/3, against it stretched across and round) or "kinds" (``_kinds_case``: Beckmann and Fresnel
-    lobes), the model's error under "model"."""
+    of incidence: aspect 1/3, against it stretched across and round), "kinds" (``_kinds_case``: Beckmann and Fresnel
+    lobes) or "velvet" (``_velvet_case``), the model's error under "model"."""
     from addon.blender.preview import render_still
     from addon.blender.preview import scene as sc
     from addon.core.material import lobes as L
@@ -53,6 +64,8 @@ def render_errors(bpy, material, exr_path, case="stretched"):
         fit, others = in_plane, {"across": across, "round": round_}
     if case == "kinds":
         fit, others = _kinds_case(L, shadowing)
+    if case == "velvet":
+        fit, others = _velvet_case(L, shadowing)
 
     env, env_path = _environment(bpy)
     layout = sphere_layout(SIZE, SIZE, 1)
@@ -76,6 +89,9 @@ def render_errors(bpy, material, exr_path, case="stretched"):
         raise AssertionError(f"not a stretched lobes group: {group.label}")
     if case == "kinds" and (kinds.count("ShaderNodeBsdfPrincipled") != 1 or "ShaderNodeBsdfDiffuse" in kinds):
         raise AssertionError(f"not one Principled and no Diffuse: {kinds}")
+    velvet_node = "ShaderNodeBsdfSheen" if bpy.app.version >= (4, 0, 0) else "ShaderNodeBsdfVelvet"
+    if case == "velvet" and kinds.count(velvet_node) != 1:
+        raise AssertionError(f"not one {velvet_node}: {kinds}")
     obj.data.materials.clear()
     obj.data.materials.append(mat)
     render_still(scene, exr_path, quiet=True)

@@ -27,6 +27,7 @@ LANE_TESTS = [
     "tests/test_artist_material.py::test_lobes_stretched_in_the_plane_render_as_the_fit_models_them",
     # and its Beckmann and Fresnel lobes (5.0's Principled metal with a black base)
     "tests/test_artist_material.py::test_beckmann_and_fresnel_lobes_render_as_the_fit_models_them",
+    "tests/test_artist_material.py::test_a_velvet_lobe_renders_as_the_fit_models_it",
 ]
 
 

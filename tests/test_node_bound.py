@@ -14,7 +14,7 @@ from addon.core.material import node_bound as B
 def test_the_velvet_distribution_is_normalised(sigma):
     """A microfacet distribution's projected area is the surface's: int D cos theta_h dw = 1."""
     th = np.linspace(1e-6, np.pi / 2, 200001)
-    d = B.velvet_distribution(sigma, np.cos(th))
+    d = L.velvet_distribution(sigma, np.cos(th))
     assert np.trapz(d * np.cos(th) * np.sin(th) * 2 * np.pi, th) == pytest.approx(1.0, abs=1e-6)
 
 
@@ -32,7 +32,7 @@ def test_a_table_made_of_the_shapes_is_reached_and_a_lobe_fit_states_more():
         h /= np.linalg.norm(h, axis=-1, keepdims=True)
         sch = (1.0 - np.clip(np.sum(wi * h, axis=-1), 0, 1)) ** 5
         spec = L.microfacet_lobe("beckmann", L.DICTIONARY[9] ** 2, wi, wo) * (0.04 + 0.96 * sch)
-        sheen = B.velvet(0.35, wi, wo) * (0.5 + 0.5 * wo[..., 2])
+        sheen = L.velvet(0.35, wi, wo) * (0.5 + 0.5 * wo[..., 2])
         return kd[:, None] / np.pi + np.stack([0.8 * spec + 0.1 * sheen] * 3)
 
     table = tabulate(brdf)

@@ -53,3 +53,5 @@ def test_stretched_lobes_render_as_modelled_in_blender_34(tmp_path):
     # Beckmann and Fresnel lobes (Principled v1's normalised dielectric factor, IOR 1.5)
     kinds = result["kinds"]
     assert kinds["model"] < 0.06 and min(kinds["GGX for Beckmann"], kinds["no Fresnel"]) > 2 * kinds["model"], kinds
+    velvet = result["velvet"]  # 3.4's Velvet BSDF
+    assert velvet["model"] < 0.06 and min(velvet["sigma 1"], velvet["GGX"]) > 2 * velvet["model"], velvet

@@ -7,10 +7,11 @@ tree is then exactly the original. Both are plain data edits inside undo-aware o
 Ctrl-Z undoes them.
 
 The group holds one of
-- lobes (GGX and Beckmann Glossy, and GGX lobes times a Fresnel factor drawn by a Principled
-  BSDF) and a diffuse lobe whose colours follow the view angle through a small packed lookup
-  image (``core.material.lobes``): plain Diffuse, Glossy, Principled, Mix, Layer Weight, Math and Image
-  Texture nodes, so any engine and any Blender (EEVEE, Cycles on GPU, Debian's 3.4); an
+- lobes (GGX and Beckmann Glossy, GGX lobes times a Fresnel factor drawn by a Principled BSDF,
+  a Velvet) and a diffuse lobe whose colours follow the view angle through a small packed lookup
+  image (``core.material.lobes``): plain Diffuse, Glossy, Principled, Velvet (4.x: Sheen), Mix,
+  Layer Weight, Math and Image Texture nodes, so any engine and any Blender (EEVEE, Cycles on
+  GPU, Debian's 3.4; EEVEE's fit holds no Velvet, which it draws as a diffuse closure); an
   approximation whose error, and the least error any mix of Blender's closures reaches on the
   table (``core.material.node_bound``), the panel states;
 - a Principled BSDF fitted to the edited table (``core.material.principled``): the same reach, farther
@@ -189,12 +190,27 @@ def _across_plane_of_incidence(group, parent=None):
     return unit.outputs["Vector"]
 
 
+def _velvet_node(group, sigma):
+    """Ashikhmin's velvet (``core.material.lobes.velvet``): 3.x's Velvet BSDF (its Sigma), 4.x's
+    Sheen BSDF with the Ashikhmin distribution (its Roughness is that sigma)."""
+    if bpy.app.version >= (4, 0, 0):
+        node = group.nodes.new("ShaderNodeBsdfSheen")
+        node.distribution = "ASHIKHMIN"
+        node.inputs["Roughness"].default_value = sigma
+    else:
+        node = group.nodes.new("ShaderNodeBsdfVelvet")
+        node.inputs["Sigma"].default_value = sigma
+    return node
+
+
 def lobe_title(kind, roughness):
     """How a lobe's frame names it."""
-    from ..core.material.lobes import BECKMANN, FRESNEL
+    from ..core.material.lobes import BECKMANN, FRESNEL, VELVET
 
     if kind == FRESNEL:
         return f"GGX lobe × Fresnel (roughness {roughness:.3f})"
+    if kind == VELVET:
+        return f"Velvet (sigma {roughness:.2f})"
     return f"{'Beckmann' if kind == BECKMANN else 'GGX'} lobe (roughness {roughness:.3f})"
 
 
@@ -202,14 +218,14 @@ def fill_lobes(group, fit, image):
     """The group's content for a ``core.material.lobes`` fit: the view angle u = theta_o / 90° from the
     Layer Weight's facing ratio (1 - |N.I|), one Image Texture per row of the lookup ``image``
     (row r read at v = (r + 1/2) / rows: texel centres, so linear filtering never mixes rows),
-    its colour driving a Diffuse BSDF (row 0), a Glossy BSDF (row k: GGX or Beckmann) or, for a
-    Fresnel lobe, the factor of a Mix Shader that mixes in a Principled BSDF (``_fresnel_node``;
-    the row is grey, its red channel read), all added. Each closure sits in a labelled frame with
+    its colour driving a Diffuse BSDF (row 0), a Glossy BSDF (row k: GGX or Beckmann), a Velvet
+    (``_velvet_node``) or, for a Fresnel lobe, the factor of a Mix Shader that mixes in a
+    Principled BSDF (``_fresnel_node``; the row is grey, its red channel read), all added. Each closure sits in a labelled frame with
     the nodes that drive it; a diffuse colour that is black at every view draws no Diffuse BSDF.
     A stretched lobe reads its aspect q from row K + k; with the tangent across the plane of
     incidence, Cycles' anisotropy 1 / sqrt(q) - 1 (q > 1) or 1 - sqrt(q) (q < 1) gives alpha
     sqrt(q) across it and alpha / sqrt(q) in it (Cycles' mapping, the same in 3.x and 4.x)."""
-    from ..core.material.lobes import BECKMANN, FRESNEL
+    from ..core.material.lobes import BECKMANN, FRESNEL, VELVET
 
     group.nodes.clear()
     out = group.nodes.new("NodeGroupOutput")
@@ -263,6 +279,12 @@ def fill_lobes(group, fit, image):
             bsdf = _node(group, "ShaderNodeMixShader", (600, y), frame, "× weight")
             group.links.new(weight.outputs["X"], bsdf.inputs["Fac"])
             group.links.new(lobe.outputs[0], bsdf.inputs[2])  # the first shader input left empty: none
+        elif kind == VELVET:
+            colour = read_row(r, y, frame, "velvet colour per view")
+            bsdf = _velvet_node(group, fit.roughness[r - 1])
+            bsdf.location, bsdf.parent = (300, y), frame
+            bsdf.name = bsdf.label = lobe_title(kind, fit.roughness[r - 1])
+            group.links.new(colour, bsdf.inputs["Color"])
         else:
             colour = read_row(r, y, frame, "lobe colour per view")
             bsdf = _glossy_node(group, fit.anisotropic, "BECKMANN" if kind == BECKMANN else "GGX")

@@ -326,7 +326,7 @@ def bench_nodes_render(spp=256, eevee=False, cases=None, model=False, out=print)
     from ..blender import material as artist
     from ..blender.preview import render_still
     from ..blender.preview import scene as sc
-    from ..core.material.lobes import fit_lobes, shadowing_for
+    from ..core.material.lobes import closures_for, fit_lobes, shadowing_for
     from ..core.preview import BakeCache, TableBRDF, bake_sphere, lit_pixel_errors, relative_rmse, sphere_layout
     from ..core.profiles.compute import compute_profiles
     from ..core.profiles.integrate import default_cache_dir
@@ -365,7 +365,7 @@ def bench_nodes_render(spp=256, eevee=False, cases=None, model=False, out=print)
         t_ref = time.perf_counter() - t0
         fits = {"CYCLES": fit_lobes(table, shadowing=shadowing)}
         if eevee:  # what Apply installs for a scene EEVEE renders: round lobes
-            fits["EEVEE"] = fit_lobes(table, shadowing=shadowing, aspects=(1.0,))
+            fits["EEVEE"] = fit_lobes(table, shadowing=shadowing, **closures_for("BLENDER_EEVEE"))
         row = dict(name=name, edit=label, bound=bound, error=fits["CYCLES"].error)
         own = None
         if model:

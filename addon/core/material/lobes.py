@@ -82,8 +82,19 @@ SHADOWING = ("correlated", "separable")
 # weight; or a Principled BSDF (metallic 1, base colour black, GGX) mixed in by a Mix Shader
 # whose factor is the weight: a GGX lobe times the Principled's Fresnel factor of theta_d
 # (``fresnel_factor``), grey, its weight at most 1 (the Mix Shader's factor).
-GGX, BECKMANN, FRESNEL = "ggx", "beckmann", "ggx_fresnel"
-KINDS = (GGX, BECKMANN, FRESNEL)
+# Or a Velvet (3.x) / Sheen with the Ashikhmin distribution (4.x) BSDF: Ashikhmin's velvet, its
+# "roughness" the closure's sigma, its colour the weight, round. Not picked with the microfacet
+# lobes: once they and their aspects are chosen, one Velvet is added where it lowers the cost by
+# MIN_GAIN (picked among the microfacet lobes it took the place of a stretched lobe that does
+# better: ilm_l3_37_matte σ̃² ×2 18.4 -> 23.8 %). It is what a widened table's grazing rise needs
+# and no microfacet lobe draws (node_bound per view: 17.9 -> 14.2 % there). EEVEE draws Velvet
+# as a diffuse closure: for a scene it renders, no Velvet.
+GGX, BECKMANN, FRESNEL, VELVET = "ggx", "beckmann", "ggx_fresnel", "velvet"
+KINDS = (GGX, BECKMANN, FRESNEL, VELVET)
+MICROFACET_KINDS = (GGX, BECKMANN, FRESNEL)
+VELVET_SIGMA = (0.1, 0.2, 0.35, 0.5, 0.7, 1.0)
+VELVET_MIN_GAIN = 0.005  # the relative error a Velvet must take off to be drawn (half a point)
+PRUNE_POINTS = 0.002  # what the lobes a Velvet made redundant may add to the error, in all, when dropped
 FRESNEL_MAX = 1.0
 # The Principled's "Specular" in 3.x (0.5: IOR 1.5, F0 0.04), which shapes its Fresnel factor there
 PRINCIPLED_3X_SPECULAR = 0.5
@@ -91,6 +102,14 @@ PRINCIPLED_3X_SPECULAR = 0.5
 
 def texel_views_deg(n=N_VIEWS):
     return tuple((j + 0.5) * 90.0 / n for j in range(n))
+
+
+def closures_for(engine: str) -> dict:
+    """``fit_lobes``' closures for a render ``engine`` (Blender's name): EEVEE ignores anisotropy
+    and draws Velvet as a diffuse closure, so for it round microfacet lobes only."""
+    if engine.startswith("BLENDER_EEVEE"):
+        return {"aspects": (1.0,), "kinds": MICROFACET_KINDS}
+    return {"aspects": ASPECTS, "kinds": KINDS}
 
 
 def shadowing_for(version) -> str:
@@ -120,7 +139,7 @@ class LobeFit:
     def describe(self) -> str:
         """The lobes in words: "2 GGX (1 stretched), 1 Beckmann, 1 GGX × Fresnel"."""
         parts = []
-        for kind, name in ((GGX, "GGX"), (BECKMANN, "Beckmann"), (FRESNEL, "GGX × Fresnel")):
+        for kind, name in ((GGX, "GGX"), (BECKMANN, "Beckmann"), (FRESNEL, "GGX × Fresnel"), (VELVET, "Velvet")):
             ks = [k for k, v in enumerate(self.kinds) if v == kind]
             if ks:
                 q = np.asarray(self.aspect, float)[ks]
@@ -285,9 +304,31 @@ def _fresnel_dielectric(c, eta):
     return 0.5 * a * a * (1.0 + b * b)
 
 
+def velvet_distribution(sigma, cos_h):
+    """Ashikhmin's velvet distribution exp(-cot² theta_h / sigma²) / (pi sigma² sin⁴ theta_h)."""
+    s2 = np.maximum(1.0 - cos_h * cos_h, 1e-300)
+    return np.exp(-(cos_h * cos_h / s2) / sigma**2) / (np.pi * sigma**2 * s2 * s2)
+
+
+def velvet(sigma, wi, wo):
+    """Cycles' Ashikhmin velvet (3.x's Velvet BSDF, 4.x's Sheen BSDF with the Ashikhmin
+    distribution): D G / (4 cos_i cos_o) with ``velvet_distribution`` (sigma at least 0.01, as
+    Cycles clamps it) and its V-cavity G = min(1, 2 (n.h) min(cos_i, cos_o) / (wo.h))."""
+    sigma = max(float(sigma), 0.01)
+    h = wi + wo
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+    ci, co = np.clip(wi[..., 2], 1e-9, 1.0), np.clip(wo[..., 2], 1e-9, 1.0)
+    nh = np.clip(h[..., 2], 0.0, 1.0 - 1e-9)
+    ho = np.clip(np.sum(wo * h, axis=-1), 1e-9, 1.0)
+    g = np.minimum(1.0, 2.0 * nh / ho * np.minimum(ci, co))
+    return velvet_distribution(sigma, nh) * g / (4.0 * ci * co)
+
+
 def lobe_shape(kind, roughness, wi, wo, shadowing="correlated", aspect=1.0):
-    """One lobe of ``kind`` (``KINDS``) at Blender ``roughness`` (alpha = roughness²), weight 1.
-    A Fresnel lobe stays round (``aspect`` ignored)."""
+    """One lobe of ``kind`` (``KINDS``) at Blender ``roughness`` (alpha = roughness²; a Velvet's
+    sigma), weight 1. Fresnel and Velvet lobes stay round (``aspect`` ignored)."""
+    if kind == VELVET:
+        return velvet(roughness, wi, wo)
     if kind == BECKMANN:
         return microfacet_lobe("beckmann", roughness * roughness, wi, wo, shadowing, aspect)
     if kind == GGX:
@@ -322,7 +363,7 @@ def _table_at_views(table, views_deg):
 
 def _features(lobes, wi, wo, shadowing, aspects=(1.0,)):
     """Diffuse, then every (kind, roughness) lobe at every aspect, aspects varying fastest (a
-    Fresnel lobe, always round, repeated)."""
+    Fresnel or Velvet lobe, always round, repeated)."""
     wo_b = np.broadcast_to(wo, wi.shape)
     q = np.asarray(aspects, float)[:, None]  # all the aspects of one lobe in one call
     rows = [np.full((1, len(wi)), 1.0 / np.pi)]
@@ -333,6 +374,8 @@ def _features(lobes, wi, wo, shadowing, aspects=(1.0,)):
             if r not in round_ggx:
                 round_ggx[r] = lobe_shape(GGX, r, wi, wo_b, shadowing)
             shape = round_ggx[r] * fresnel
+        elif kind == VELVET:
+            shape = velvet(r, wi, wo_b)
         else:
             shape = lobe_shape(kind, r, wi, wo_b, shadowing, q)
             if kind == GGX and len(q) > 0 and 1.0 in aspects:
@@ -415,6 +458,10 @@ class _View:
         self.Ga = self.G + lam * np.outer(a, a)
         self.ra = self.r + lam * alb[:, None] * a[None, :]
         self.yya = self.yy + lam * alb * alb
+        # the norms of the channels' sum, without and with the albedo equation (``_cost_fn``)
+        total = rho.sum(axis=0)
+        self.yy_sum = float(np.sum(w * total * total))
+        self.yya_sum = self.yy_sum + lam * float(alb.sum()) ** 2
         self.albedo = alb
 
     def solve(self, idx, grey=None):
@@ -449,14 +496,17 @@ class _View:
         return x, float(z @ H @ z - 2.0 * z @ b + np.sum(self.yya))
 
 
-def _cost_fn(vs, capped_cols=None):
+def _cost_fn(vs, capped_cols=None, residual=False):
     """The pixel-share weighted cost per view of a set of columns per view, for the channels'
-    sum (a quick stand-in for the three channels while lobes are chosen); the columns flagged in
+    sum (a quick stand-in for the three channels while lobes are chosen: it ranks the
+    candidates, but its constant is the channels' own norms, not their sum's, so it is no
+    squared residual and may fall below 0: measured tables then take all N_LOBES; with
+    ``residual`` the sum's own norm, the squared residual of fitting the sum); the columns flagged in
     ``capped_cols`` (Fresnel lobes, one weight for the three channels) capped at 3 FRESNEL_MAX,
     the diffuse (column 0) at the sum of its caps per channel."""
     Ga = np.stack([v.Ga for v in vs])  # (V, M, M)
     ra = np.stack([v.ra.sum(axis=0) for v in vs])  # (V, M)
-    yy = np.array([v.yya.sum() for v in vs])
+    yy = np.array([v.yya_sum if residual else v.yya.sum() for v in vs])
     rows = np.arange(len(vs))[:, None]
     capped_cols = np.zeros(Ga.shape[1], bool) if capped_cols is None else np.asarray(capped_cols, bool)
     col_cap = np.where(capped_cols, 3.0 * FRESNEL_MAX, np.inf)[None, :].repeat(len(vs), axis=0)  # (V, M)
@@ -513,7 +563,7 @@ def _choose_aspects(vs, n_lobes, n_aspects, shares, round_index=0, round_views=(
     lobes, each lobe in turn taking per view the aspect that costs least with the others fixed.
     Views in ``round_views`` and lobes in ``round_lobes`` (Fresnel lobes) keep aspect 1 (index
     ``round_index``)."""
-    capped = np.zeros(1 + n_lobes * n_aspects, bool)
+    capped = np.zeros(vs[0].Ga.shape[0], bool)  # the views may hold more lobes after these (Velvets)
     for k in round_lobes:
         capped[1 + k * n_aspects : 1 + (k + 1) * n_aspects] = True
     costs, V = _cost_fn(vs, capped), len(vs)
@@ -533,6 +583,58 @@ def _choose_aspects(vs, n_lobes, n_aspects, shares, round_index=0, round_views=(
                 table[a] = np.where(allowed[a], costs(cols.T), np.inf)
             pick[k] = np.argmin(table, axis=0)
     return pick
+
+
+def _lobe_costs(vs, grey_cols):
+    """(cost of columns (K, V), the BRDF's norm): ``_cost_fn``'s squared residual of the
+    channels' sum, pixel-share weighted and summed over the views, and the sum's own norm in
+    the same weighting without the albedo equation, so that sqrt(cost / norm) stands for a
+    relative BRDF error."""
+    costs, sh = _cost_fn(vs, grey_cols, residual=True), np.array([v.share for v in vs])
+    norm = float(np.sum(sh * np.array([v.yy_sum for v in vs])))
+
+    def cost(cols):
+        return float(np.sum(sh * costs(np.vstack([np.zeros((1, cols.shape[1]), int), cols]).T)))
+
+    return cost, norm
+
+
+def _velvet_pick(vs, cols, nq, q1, fresnel, n_velvets):
+    """Which of the Velvet candidates (after the K chosen lobes in the views' columns, each at
+    ``nq`` repeated aspects) lowers ``_lobe_costs`` most, the lobes ``cols`` (K, V) kept;
+    None unless by MIN_GAIN of it and VELVET_MIN_GAIN of the relative BRDF error it stands for
+    (a closure more only where it shows: on a table the lobes already meet, a few per cent of
+    a small residual is not worth a node)."""
+    K, V = cols.shape
+    cost, norm = _lobe_costs(vs, _grey_columns(vs, fresnel, nq))
+    last = cost(cols)
+    trials = [cost(np.vstack([cols, np.full((1, V), 1 + (K + k) * nq + q1)])) for k in range(n_velvets)]
+    k = int(np.argmin(trials))
+    points = math.sqrt(max(last, 0.0) / norm) - math.sqrt(max(trials[k], 0.0) / norm)
+    return k if trials[k] <= (1.0 - MIN_GAIN) * last and points >= VELVET_MIN_GAIN else None
+
+
+def _grey_columns(vs, fresnel, nq):
+    """The views' columns that belong to Fresnel lobes (one weight for the three channels)."""
+    grey = np.zeros(vs[0].Ga.shape[0], bool)
+    for k, f in enumerate(fresnel):
+        grey[1 + k * nq : 1 + (k + 1) * nq] = f
+    return grey
+
+
+def _prune(vs, cols, fresnel, nq):
+    """The lobes (indices into ``cols``' rows) left once those a Velvet (the last row, kept) made
+    redundant are dropped: the one whose loss raises ``_lobe_costs``' relative error least,
+    again and again, while in all it rises by under PRUNE_POINTS."""
+    cost, norm = _lobe_costs(vs, _grey_columns(vs, fresnel, nq))
+    keep = list(range(len(cols)))
+    start = math.sqrt(max(cost(cols), 0.0) / norm)
+    while len(keep) > 2:
+        c, k = min((cost(cols[[i for i in keep if i != k]]), k) for k in keep[:-1])
+        if math.sqrt(max(c, 0.0) / norm) - start >= PRUNE_POINTS:
+            break
+        keep.remove(k)
+    return keep
 
 
 def fit_lobes(
@@ -574,12 +676,12 @@ def _fit_samples(
 ):
     if shadowing not in SHADOWING:
         raise ValueError(f"unknown shadowing {shadowing!r}")
-    if not kinds or any(k not in KINDS for k in kinds):
-        raise ValueError(f"lobe kinds must be among {KINDS}")
+    if any(k not in KINDS for k in kinds) or not any(k in MICROFACET_KINDS for k in kinds):
+        raise ValueError(f"lobe kinds must be among {KINDS}, one of {MICROFACET_KINDS} at least")
     dictionary, aspects = tuple(dictionary), tuple(float(q) for q in aspects)
     if 1.0 not in aspects or any(not ASPECT_RANGE[0] <= q <= ASPECT_RANGE[1] for q in aspects):
         raise ValueError(f"aspects must hold 1 and lie in {ASPECT_RANGE}")
-    lobes_all = [(kind, r) for kind in kinds for r in dictionary]
+    lobes_all = [(kind, r) for kind in kinds if kind in MICROFACET_KINDS for r in dictionary]
     vs = [_View(*at, shadowing, lobes_all, diffuse_quantile=diffuse_quantile) for at in samples]
     fres_cols = np.array([False] + [kind == FRESNEL for kind, _ in lobes_all])
     # The lobes among round ones, then each Glossy lobe's aspect per view (the first texel stays
@@ -595,14 +697,31 @@ def _fit_samples(
     )
     chosen = [lobes_all[k] for k in pick]
     fresnel = [kind == FRESNEL for kind, _ in chosen]
-    nq = len(aspects)
-    if nq > 1 and not all(fresnel):
-        vs = [v.with_lobes(chosen, aspects) for v in vs]
-        round_lobes = tuple(k for k, f in enumerate(fresnel) if f)
-        qi = _choose_aspects(vs, len(chosen), nq, [v.share for v in vs], aspects.index(1.0), round_lobes=round_lobes)
-        cols = 1 + np.arange(len(chosen))[:, None] * nq + qi  # (K, views)
+    round_q = aspects.index(1.0)
+    stretch = len(aspects) > 1 and not all(fresnel)
+    velvets = [(VELVET, s) for s in VELVET_SIGMA] if VELVET in kinds else []
+    qi = np.full((len(chosen), len(vs)), round_q)  # each lobe's aspect per view, into ``aspects``
+    if stretch or velvets:
+        # the chosen lobes at every aspect (or round), and the Velvet candidates after them
+        used = aspects if stretch else (1.0,)
+        nq, q1 = len(used), used.index(1.0)
+        vs = [v.with_lobes(chosen + velvets, used) for v in vs]
+        if stretch:
+            round_lobes = tuple(k for k, f in enumerate(fresnel) if f)
+            qi = _choose_aspects(vs, len(chosen), nq, [v.share for v in vs], q1, round_lobes=round_lobes)
+        n_micro = len(chosen)
+        cols = 1 + np.arange(n_micro)[:, None] * nq + (qi if stretch else np.full_like(qi, q1))  # (K, views)
+        if velvets:
+            k = _velvet_pick(vs, cols, nq, q1, fresnel, len(velvets))
+            if k is not None:
+                chosen.append(velvets[k])
+                fresnel.append(False)
+                qi = np.vstack([qi, np.full((1, len(vs)), round_q)])
+                cols = np.vstack([cols, np.full((1, len(vs)), 1 + (n_micro + k) * nq + q1)])
+                rest = _prune(vs, cols, fresnel, nq)
+                chosen, fresnel = [chosen[i] for i in rest], [fresnel[i] for i in rest]
+                qi, cols = qi[rest], cols[rest]
     else:  # round lobes: their columns in the dictionary's normal equations
-        qi = np.full((len(chosen), len(vs)), aspects.index(1.0))
         cols = np.repeat(1 + np.array(pick)[:, None], len(vs), axis=1)
     W = np.zeros((1 + len(chosen), n_views, 3))
     for j, v in enumerate(vs):

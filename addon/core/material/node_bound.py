@@ -16,7 +16,8 @@ holds, at 18 roughness values from 0.01 to 1 (those of ``lobes.DICTIONARY`` amon
   dielectric specular's (IOR 1.1, 1.5, 1.8); in 3.x Principled v1's normalised dielectric
   factor at those IORs (the fit's Fresnel lobe among them);
 - Ashikhmin-Shirley (Glossy);
-- 3.4's Velvet (Ashikhmin's velvet, 6 widths) and 3.x's Principled sheen (1 - wi.h)^5;
+- Velvet (3.x's Velvet BSDF, 4.x's Sheen BSDF with the Ashikhmin distribution: Ashikhmin's
+  velvet, the fit's 6 widths) and 3.x's Principled sheen (1 - wi.h)^5;
 - Diffuse with roughness (the classic Oren-Nayar at its roughest, Fujii's at roughness 1: with
   Lambert they span every roughness) and 3.x's Principled diffuse at five roughness values;
 - Toon Glossy cones about the mirror direction (14 sizes from 0.5° to 60°), whose mix is any
@@ -42,14 +43,13 @@ import math
 import numpy as np
 
 from . import lobes
-from .lobes import ERROR_VIEWS_DEG, _nnls_gram, _table_at_views, microfacet_lobe
+from .lobes import ERROR_VIEWS_DEG, VELVET_SIGMA, _nnls_gram, _table_at_views, microfacet_lobe, velvet
 from .principled import pixel_share
 
 # Blender roughness (alpha = r²) and aspects: the fit's own grids, widened, so that the fit's
 # lobes are among the shapes
 ROUGHNESS = (0.01, 0.014) + lobes.DICTIONARY
 ASPECTS = lobes.ASPECTS + (6.0,)  # 0.5 to 6
-VELVET_SIGMA = (0.1, 0.2, 0.35, 0.5, 0.7, 1.0)
 TOON_SIZES_DEG = tuple(float(v) for v in np.geomspace(0.5, 60.0, 14))
 
 
@@ -62,24 +62,6 @@ def ashikhmin_shirley(alpha, wi, wo):
     hi = np.maximum(np.abs(np.sum(wi * h, axis=-1)), 1e-6)
     top = np.maximum(np.maximum(wi[..., 2], wo[..., 2]), 1e-6)
     return (n + 1.0) / (8.0 * np.pi) * np.clip(h[..., 2], 0.0, 1.0) ** n / (hi * top)
-
-
-def velvet_distribution(sigma, cos_h):
-    """Ashikhmin's velvet distribution exp(-cot² theta_h / sigma²) / (pi sigma² sin⁴ theta_h)."""
-    s2 = np.maximum(1.0 - cos_h * cos_h, 1e-300)
-    return np.exp(-(cos_h * cos_h / s2) / sigma**2) / (np.pi * sigma**2 * s2 * s2)
-
-
-def velvet(sigma, wi, wo):
-    """Cycles 3.4's Velvet: D G / (4 cos_i cos_o) with ``velvet_distribution`` and its
-    V-cavity G = min(1, 2 (n.h) min(cos_i, cos_o) / (wo.h))."""
-    h = wi + wo
-    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-    ci, co = np.clip(wi[..., 2], 1e-9, 1.0), np.clip(wo[..., 2], 1e-9, 1.0)
-    nh = np.clip(h[..., 2], 0.0, 1.0 - 1e-9)
-    ho = np.clip(np.sum(wo * h, axis=-1), 1e-9, 1.0)
-    g = np.minimum(1.0, 2.0 * nh / ho * np.minimum(ci, co))
-    return velvet_distribution(sigma, nh) * g / (4.0 * ci * co)
 
 
 F82_MU = 1.0 / 7.0  # where mu (1 - mu)^6 peaks: 4.x's F82 tint sets the metal's Fresnel there
