@@ -1,6 +1,7 @@
 """The check that Cycles renders a stretched lobe of ``core.material.lobes`` as the fit models it: one GGX
 lobe (roughness 0.3, white) stretched across the plane of incidence (aspect 3 past the first
-texel; and, as broad edits need, in it: aspect 1/3; and the other kinds: Beckmann, Fresnel, Velvet), put into a material by the add-on's ``apply_lobes``, on a sphere under Blender's studio
+texel; and, as broad edits need, in it: aspect 1/3; and the other kinds: Beckmann, Fresnel, Velvet,
+rough Diffuse), put into a material by the add-on's ``apply_lobes``, on a sphere under Blender's studio
 HDRI, against a converged numpy render of the model itself (``lobes_brdf``: a MERL table cannot
 hold it, its axes follow the view and a table is reciprocal), of the same lobe stretched in the
 plane, and of the round lobe. Run by the bpy-module tests and, in Debian's 3.4, by
@@ -38,11 +39,28 @@ def _velvet_case(L, shadowing):
     }
 
 
+def _rough_case(L, shadowing):
+    """A rough diffuse (white Diffuse BSDF at roughness 1, weight 0.8) over a dim diffuse (0.1);
+    against a Lambert of the same albedo at normal view, and against the other Blenders' rough
+    diffuse (4.x's multiple scattering in 3.x, none in 4.x)."""
+    w = np.zeros((2, L.N_VIEWS, 3))
+    w[0], w[1] = 0.1, 0.8
+    other = "separable" if shadowing == "correlated" else "correlated"
+    lambert = np.zeros((1, L.N_VIEWS, 3))
+    lambert[0] = (
+        0.1 + 0.8 * float(L.rough_diffuse(np.array([[0.0, 0.0, 1.0]]), np.array([0.0, 0.0, 1.0]), shadowing)[0]) * np.pi
+    )
+    return L.LobeFit((1.0,), w, shadowing, 0.0, 0.0, None, (L.ROUGH_DIFFUSE,)), {
+        "Lambert": L.LobeFit((), lambert, shadowing, 0.0, 0.0),
+        "other Blender's": L.LobeFit((1.0,), w, other, 0.0, 0.0, None, (L.ROUGH_DIFFUSE,)),
+    }
+
+
 def render_errors(bpy, material, exr_path, case="stretched"):
     """Per-pixel relative RMSE of the render against the three references. ``case``:
     "stretched" (the stretched lobe above), "in the plane" (the same lobe stretched in the plane
     of incidence: aspect 1/3, against it stretched across and round), "kinds" (``_kinds_case``: Beckmann and Fresnel
-    lobes) or "velvet" (``_velvet_case``), the model's error under "model"."""
+    lobes), "velvet" (``_velvet_case``) or "rough" (``_rough_case``), the model's error under "model"."""
     from addon.blender.preview import render_still
     from addon.blender.preview import scene as sc
     from addon.core.material import lobes as L
@@ -66,6 +84,8 @@ def render_errors(bpy, material, exr_path, case="stretched"):
         fit, others = _kinds_case(L, shadowing)
     if case == "velvet":
         fit, others = _velvet_case(L, shadowing)
+    if case == "rough":
+        fit, others = _rough_case(L, shadowing)
 
     env, env_path = _environment(bpy)
     layout = sphere_layout(SIZE, SIZE, 1)

@@ -28,6 +28,7 @@ LANE_TESTS = [
     # and its Beckmann and Fresnel lobes (5.0's Principled metal with a black base)
     "tests/test_artist_material.py::test_beckmann_and_fresnel_lobes_render_as_the_fit_models_them",
     "tests/test_artist_material.py::test_a_velvet_lobe_renders_as_the_fit_models_it",
+    "tests/test_artist_material.py::test_a_rough_diffuse_renders_as_the_fit_models_it",
 ]
 
 

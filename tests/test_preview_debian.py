@@ -55,3 +55,5 @@ def test_stretched_lobes_render_as_modelled_in_blender_34(tmp_path):
     assert kinds["model"] < 0.06 and min(kinds["GGX for Beckmann"], kinds["no Fresnel"]) > 2 * kinds["model"], kinds
     velvet = result["velvet"]  # 3.4's Velvet BSDF
     assert velvet["model"] < 0.06 and min(velvet["sigma 1"], velvet["GGX"]) > 2 * velvet["model"], velvet
+    rough = result["rough"]  # 3.4's Oren-Nayar, without 4.x's multiple scattering
+    assert rough["model"] < 0.06 and min(rough["Lambert"], rough["other Blender's"]) > 2 * rough["model"], rough

@@ -8,10 +8,11 @@ Ctrl-Z undoes them.
 
 The group holds one of
 - lobes (GGX and Beckmann Glossy, GGX lobes times a Fresnel factor drawn by a Principled BSDF,
-  a Velvet) and a diffuse lobe whose colours follow the view angle through a small packed lookup
+  a Velvet, a rough Diffuse) and a diffuse lobe whose colours follow the view angle through a small packed lookup
   image (``core.material.lobes``): plain Diffuse, Glossy, Principled, Velvet (4.x: Sheen), Mix,
   Layer Weight, Math and Image Texture nodes, so any engine and any Blender (EEVEE, Cycles on
-  GPU, Debian's 3.4; EEVEE's fit holds no Velvet, which it draws as a diffuse closure); an
+  GPU, Debian's 3.4; EEVEE's fit holds no Velvet, which it draws as a diffuse closure, nor a
+  rough Diffuse); an
   approximation whose error, and the least error any mix of Blender's closures reaches on the
   table (``core.material.node_bound``), the panel states;
 - a Principled BSDF fitted to the edited table (``core.material.principled``): the same reach, farther
@@ -205,12 +206,14 @@ def _velvet_node(group, sigma):
 
 def lobe_title(kind, roughness):
     """How a lobe's frame names it."""
-    from ..core.material.lobes import BECKMANN, FRESNEL, VELVET
+    from ..core.material.lobes import BECKMANN, FRESNEL, ROUGH_DIFFUSE, VELVET
 
     if kind == FRESNEL:
         return f"GGX lobe × Fresnel (roughness {roughness:.3f})"
     if kind == VELVET:
         return f"Velvet (sigma {roughness:.2f})"
+    if kind == ROUGH_DIFFUSE:
+        return f"rough Diffuse (roughness {roughness:.2f})"
     return f"{'Beckmann' if kind == BECKMANN else 'GGX'} lobe (roughness {roughness:.3f})"
 
 
@@ -219,13 +222,14 @@ def fill_lobes(group, fit, image):
     Layer Weight's facing ratio (1 - |N.I|), one Image Texture per row of the lookup ``image``
     (row r read at v = (r + 1/2) / rows: texel centres, so linear filtering never mixes rows),
     its colour driving a Diffuse BSDF (row 0), a Glossy BSDF (row k: GGX or Beckmann), a Velvet
-    (``_velvet_node``) or, for a Fresnel lobe, the factor of a Mix Shader that mixes in a
-    Principled BSDF (``_fresnel_node``; the row is grey, its red channel read), all added. Each closure sits in a labelled frame with
+    (``_velvet_node``) or, for a Fresnel lobe or a rough diffuse, the factor of a Mix Shader that
+    mixes in a Principled BSDF (``_fresnel_node``) or a white Diffuse BSDF at the lobe's
+    roughness (the row is grey, its red channel read), all added. Each closure sits in a labelled frame with
     the nodes that drive it; a diffuse colour that is black at every view draws no Diffuse BSDF.
     A stretched lobe reads its aspect q from row K + k; with the tangent across the plane of
     incidence, Cycles' anisotropy 1 / sqrt(q) - 1 (q > 1) or 1 - sqrt(q) (q < 1) gives alpha
     sqrt(q) across it and alpha / sqrt(q) in it (Cycles' mapping, the same in 3.x and 4.x)."""
-    from ..core.material.lobes import BECKMANN, FRESNEL, VELVET
+    from ..core.material.lobes import BECKMANN, FRESNEL, GREY_KINDS, VELVET
 
     group.nodes.clear()
     out = group.nodes.new("NodeGroupOutput")
@@ -269,11 +273,16 @@ def fill_lobes(group, fit, image):
             bsdf = _node(group, "ShaderNodeBsdfDiffuse", (300, y), frame, "diffuse")
             bsdf.inputs["Roughness"].default_value = 0.0
             group.links.new(colour, bsdf.inputs["Color"])
-        elif kind == FRESNEL:
-            colour = read_row(r, y, frame, "Fresnel lobe weight per view (grey)")
+        elif kind in GREY_KINDS:
+            colour = read_row(r, y, frame, "mixed-in lobe's weight per view (grey)")
             weight = _node(group, "ShaderNodeSeparateXYZ", (100, y), frame, "weight")
             group.links.new(colour, weight.inputs[0])
-            lobe = _fresnel_node(group, fit.roughness[r - 1])
+            if kind == FRESNEL:
+                lobe = _fresnel_node(group, fit.roughness[r - 1])
+            else:  # white, so that 4.x's multiple scattering is the one shape the fit models
+                lobe = group.nodes.new("ShaderNodeBsdfDiffuse")
+                lobe.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+                lobe.inputs["Roughness"].default_value = fit.roughness[r - 1]
             lobe.location, lobe.parent = (300, y - 60), frame
             lobe.name = lobe.label = lobe_title(kind, fit.roughness[r - 1])
             bsdf = _node(group, "ShaderNodeMixShader", (600, y), frame, "× weight")

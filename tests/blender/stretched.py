@@ -1,6 +1,6 @@
 """Run inside Debian's ``blender -b`` (3.4): Cycles renders a stretched lobe of ``core.material.lobes``
 through 3.4's Anisotropic node as the fit models it, and a Beckmann lobe and a Fresnel lobe
-(3.4's Principled v1 factor) and a Velvet too (tests/_stretched.py).
+(3.4's Principled v1 factor), a Velvet and a rough Diffuse too (tests/_stretched.py).
 
     blender -b --factory-startup --python-exit-code 1 -P stretched.py -- ROOT OUT_DIR
 """
@@ -25,7 +25,16 @@ err = render_errors(bpy, material, os.path.join(OUT, "stretched.exr"))
 kinds = render_errors(bpy, material, os.path.join(OUT, "kinds.exr"), case="kinds")
 in_plane = render_errors(bpy, material, os.path.join(OUT, "in-plane.exr"), case="in the plane")
 velvet = render_errors(bpy, material, os.path.join(OUT, "velvet.exr"), case="velvet")
+rough = render_errors(bpy, material, os.path.join(OUT, "rough.exr"), case="rough")
 with open(os.path.join(OUT, "stretched.json"), "w") as fh:
     json.dump(
-        {"blender": bpy.app.version_string, "errors": err, "kinds": kinds, "in_plane": in_plane, "velvet": velvet}, fh
+        {
+            "blender": bpy.app.version_string,
+            "errors": err,
+            "kinds": kinds,
+            "in_plane": in_plane,
+            "velvet": velvet,
+            "rough": rough,
+        },
+        fh,
     )

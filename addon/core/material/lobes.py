@@ -89,12 +89,19 @@ SHADOWING = ("correlated", "separable")
 # better: ilm_l3_37_matte σ̃² ×2 18.4 -> 23.8 %). It is what a widened table's grazing rise needs
 # and no microfacet lobe draws (node_bound per view: 17.9 -> 14.2 % there). EEVEE draws Velvet
 # as a diffuse closure: for a scene it renders, no Velvet.
-GGX, BECKMANN, FRESNEL, VELVET = "ggx", "beckmann", "ggx_fresnel", "velvet"
-KINDS = (GGX, BECKMANN, FRESNEL, VELVET)
+# Or a rough diffuse: a white Diffuse BSDF at roughness 1 (Fujii's Oren-Nayar, ``rough_diffuse``)
+# mixed in by a Mix Shader whose factor is the weight, grey and at most 1 like a Fresnel lobe's
+# (4.x adds to it a multiple-scattering term that depends on the colour: with white it is one
+# fixed shape, which a per-channel colour would not be). Added after the lobes as the Velvet is,
+# where it lowers the cost the same way: the retro-reflection at grazing views that widened
+# tables show (node_bound per view, with the Velvet: 14.2 -> 11.0 % on ilm_l3_37_matte σ̃² ×2).
+GGX, BECKMANN, FRESNEL, VELVET, ROUGH_DIFFUSE = "ggx", "beckmann", "ggx_fresnel", "velvet", "rough_diffuse"
+KINDS = (GGX, BECKMANN, FRESNEL, VELVET, ROUGH_DIFFUSE)
 MICROFACET_KINDS = (GGX, BECKMANN, FRESNEL)
+GREY_KINDS = (FRESNEL, ROUGH_DIFFUSE)  # one weight for the three channels, at most FRESNEL_MAX (a Mix Shader's factor)
 VELVET_SIGMA = (0.1, 0.2, 0.35, 0.5, 0.7, 1.0)
-VELVET_MIN_GAIN = 0.005  # the relative error a Velvet must take off to be drawn (half a point)
-PRUNE_POINTS = 0.002  # what the lobes a Velvet made redundant may add to the error, in all, when dropped
+EXTRA_MIN_GAIN = 0.005  # the relative error a Velvet or a rough diffuse must take off to be drawn (half a point)
+PRUNE_POINTS = 0.002  # what the lobes they made redundant may add to the error, in all, when dropped
 FRESNEL_MAX = 1.0
 # The Principled's "Specular" in 3.x (0.5: IOR 1.5, F0 0.04), which shapes its Fresnel factor there
 PRINCIPLED_3X_SPECULAR = 0.5
@@ -105,8 +112,9 @@ def texel_views_deg(n=N_VIEWS):
 
 
 def closures_for(engine: str) -> dict:
-    """``fit_lobes``' closures for a render ``engine`` (Blender's name): EEVEE ignores anisotropy
-    and draws Velvet as a diffuse closure, so for it round microfacet lobes only."""
+    """``fit_lobes``' closures for a render ``engine`` (Blender's name): EEVEE ignores anisotropy,
+    draws Velvet as a diffuse closure and a Diffuse BSDF without its roughness, so for it round
+    microfacet lobes only."""
     if engine.startswith("BLENDER_EEVEE"):
         return {"aspects": (1.0,), "kinds": MICROFACET_KINDS}
     return {"aspects": ASPECTS, "kinds": KINDS}
@@ -139,7 +147,8 @@ class LobeFit:
     def describe(self) -> str:
         """The lobes in words: "2 GGX (1 stretched), 1 Beckmann, 1 GGX × Fresnel"."""
         parts = []
-        for kind, name in ((GGX, "GGX"), (BECKMANN, "Beckmann"), (FRESNEL, "GGX × Fresnel"), (VELVET, "Velvet")):
+        names = ((GGX, "GGX"), (BECKMANN, "Beckmann"), (FRESNEL, "GGX × Fresnel"), (VELVET, "Velvet"))
+        for kind, name in names + ((ROUGH_DIFFUSE, "rough Diffuse"),):
             ks = [k for k, v in enumerate(self.kinds) if v == kind]
             if ks:
                 q = np.asarray(self.aspect, float)[ks]
@@ -189,9 +198,9 @@ class LobeFit:
         kinds = tuple(str(k) for k in d.get("kinds", [GGX] * len(r)))
         if len(kinds) != len(r) or any(k not in KINDS for k in kinds):
             raise ValueError("lobe kinds of the wrong length or unknown")
-        fres = [k == FRESNEL for k in kinds]
+        fres = [k in GREY_KINDS for k in kinds]
         if any(fres) and (np.any(w[1:][fres] < 0.0) or np.any(w[1:][fres] > FRESNEL_MAX)):
-            raise ValueError("a Fresnel lobe's weight lies outside its Mix Shader's [0, 1]")
+            raise ValueError("a mixed-in lobe's weight lies outside its Mix Shader's [0, 1]")
         bound = d.get("bound")
         bound = None if bound is None else float(bound)
         return cls(r, w, str(d["shadowing"]), float(d["error"]), float(d["albedo_error"]), q, kinds, bound)
@@ -324,11 +333,41 @@ def velvet(sigma, wi, wo):
     return velvet_distribution(sigma, nh) * g / (4.0 * ci * co)
 
 
+def _oren_nayar_energy(a, b, c):
+    """The directional albedo of Fujii's single-scattering Oren-Nayar (a + b t) at cos ``c``:
+    a pi + b G(c), G Fujii's angular integral."""
+    c = np.clip(c, 1e-6, 1.0)
+    s = np.sqrt(1.0 - c * c)
+    th = np.arccos(c)
+    g = s * (th - 2.0 / 3.0 - s * c) + 2.0 / 3.0 * (s / c) * (1.0 - s**3)
+    return a * np.pi + b * g
+
+
+def rough_diffuse(wi, wo, shadowing="correlated"):
+    """Cycles' Diffuse BSDF at roughness 1 with a white colour: Fujii's Oren-Nayar a + b t,
+    a = b = 1 / (pi + pi / 2 - 2 / 3), t = s / max(cos_i, cos_o) where s = wi.wo - cos_i cos_o > 0
+    (else s); in 4.x (``"correlated"``) plus the multiple-scattering term
+    (1 - E(cos_i)) (1 - E(cos_o)) / (pi (1 - Eavg)), which the white colour makes one shape."""
+    a = b = 1.0 / (np.pi + np.pi / 2.0 - 2.0 / 3.0)
+    ci, co = np.clip(wi[..., 2], 0.0, 1.0), np.clip(wo[..., 2], 0.0, 1.0)
+    s = np.sum(wi * wo, axis=-1) - ci * co
+    t = np.where(s > 0.0, s / (np.maximum(ci, co) + 1e-300), s)
+    f = a + b * t
+    if shadowing == "correlated":
+        e_avg = a * np.pi + (2.0 * np.pi - 5.6) / 3.0 * b
+        f = f + (1.0 - _oren_nayar_energy(a, b, ci)) * (1.0 - _oren_nayar_energy(a, b, co)) / (np.pi * (1.0 - e_avg))
+    elif shadowing != "separable":
+        raise ValueError(f"unknown shadowing {shadowing!r}")
+    return f
+
+
 def lobe_shape(kind, roughness, wi, wo, shadowing="correlated", aspect=1.0):
     """One lobe of ``kind`` (``KINDS``) at Blender ``roughness`` (alpha = roughness²; a Velvet's
     sigma), weight 1. Fresnel and Velvet lobes stay round (``aspect`` ignored)."""
     if kind == VELVET:
         return velvet(roughness, wi, wo)
+    if kind == ROUGH_DIFFUSE:
+        return rough_diffuse(wi, wo, shadowing)
     if kind == BECKMANN:
         return microfacet_lobe("beckmann", roughness * roughness, wi, wo, shadowing, aspect)
     if kind == GGX:
@@ -374,8 +413,8 @@ def _features(lobes, wi, wo, shadowing, aspects=(1.0,)):
             if r not in round_ggx:
                 round_ggx[r] = lobe_shape(GGX, r, wi, wo_b, shadowing)
             shape = round_ggx[r] * fresnel
-        elif kind == VELVET:
-            shape = velvet(r, wi, wo_b)
+        elif kind in (VELVET, ROUGH_DIFFUSE):
+            shape = lobe_shape(kind, r, wi, wo_b, shadowing)
         else:
             shape = lobe_shape(kind, r, wi, wo_b, shadowing, q)
             if kind == GGX and len(q) > 0 and 1.0 in aspects:
@@ -599,38 +638,50 @@ def _lobe_costs(vs, grey_cols):
     return cost, norm
 
 
-def _velvet_pick(vs, cols, nq, q1, fresnel, n_velvets):
-    """Which of the Velvet candidates (after the K chosen lobes in the views' columns, each at
-    ``nq`` repeated aspects) lowers ``_lobe_costs`` most, the lobes ``cols`` (K, V) kept;
-    None unless by MIN_GAIN of it and VELVET_MIN_GAIN of the relative BRDF error it stands for
-    (a closure more only where it shows: on a table the lobes already meet, a few per cent of
-    a small residual is not worth a node)."""
+def _extras_pick(vs, cols, nq, q1, extras, grey_cols):
+    """Which of the ``extras`` (Velvets and a rough diffuse, after the K chosen lobes in the
+    views' columns, each at ``nq`` repeated aspects) to add to the lobes ``cols`` (K, V): the
+    one that lowers ``_lobe_costs`` most, then again among the other kind, each only if by
+    MIN_GAIN of it and EXTRA_MIN_GAIN of the relative BRDF error it stands for (a closure more
+    only where it shows: on a table the lobes already meet, a few per cent of a small residual
+    is not worth a node)."""
     K, V = cols.shape
-    cost, norm = _lobe_costs(vs, _grey_columns(vs, fresnel, nq))
-    last = cost(cols)
-    trials = [cost(np.vstack([cols, np.full((1, V), 1 + (K + k) * nq + q1)])) for k in range(n_velvets)]
-    k = int(np.argmin(trials))
-    points = math.sqrt(max(last, 0.0) / norm) - math.sqrt(max(trials[k], 0.0) / norm)
-    return k if trials[k] <= (1.0 - MIN_GAIN) * last and points >= VELVET_MIN_GAIN else None
+    cost, norm = _lobe_costs(vs, grey_cols)
+    picked = []
+    for _ in range(2):
+        last = cost(cols)
+        trials = []
+        for k, (kind, _) in enumerate(extras):
+            if all(extras[p][0] != kind for p in picked):
+                trials.append((cost(np.vstack([cols, np.full((1, V), 1 + (K + k) * nq + q1)])), k))
+        if not trials:
+            break
+        c, k = min(trials)
+        points = math.sqrt(max(last, 0.0) / norm) - math.sqrt(max(c, 0.0) / norm)
+        if c > (1.0 - MIN_GAIN) * last or points < EXTRA_MIN_GAIN:
+            break
+        picked.append(k)
+        cols = np.vstack([cols, np.full((1, V), 1 + (K + k) * nq + q1)])
+    return picked
 
 
-def _grey_columns(vs, fresnel, nq):
-    """The views' columns that belong to Fresnel lobes (one weight for the three channels)."""
-    grey = np.zeros(vs[0].Ga.shape[0], bool)
-    for k, f in enumerate(fresnel):
-        grey[1 + k * nq : 1 + (k + 1) * nq] = f
-    return grey
+def _grey_columns(vs, grey, nq):
+    """The views' columns of the lobes flagged ``grey`` (one weight for the three channels)."""
+    out = np.zeros(vs[0].Ga.shape[0], bool)
+    for k, f in enumerate(grey):
+        out[1 + k * nq : 1 + (k + 1) * nq] = f
+    return out
 
 
-def _prune(vs, cols, fresnel, nq):
-    """The lobes (indices into ``cols``' rows) left once those a Velvet (the last row, kept) made
-    redundant are dropped: the one whose loss raises ``_lobe_costs``' relative error least,
-    again and again, while in all it rises by under PRUNE_POINTS."""
-    cost, norm = _lobe_costs(vs, _grey_columns(vs, fresnel, nq))
+def _prune(vs, cols, n_kept, grey_cols):
+    """The lobes (indices into ``cols``' rows) left once those the extras (the last ``n_kept``
+    rows, kept) made redundant are dropped: the one whose loss raises ``_lobe_costs``' relative
+    error least, again and again, while in all it rises by under PRUNE_POINTS."""
+    cost, norm = _lobe_costs(vs, grey_cols)
     keep = list(range(len(cols)))
     start = math.sqrt(max(cost(cols), 0.0) / norm)
-    while len(keep) > 2:
-        c, k = min((cost(cols[[i for i in keep if i != k]]), k) for k in keep[:-1])
+    while len(keep) > n_kept + 1:
+        c, k = min((cost(cols[[i for i in keep if i != k]]), k) for k in keep[: len(keep) - n_kept])
         if math.sqrt(max(c, 0.0) / norm) - start >= PRUNE_POINTS:
             break
         keep.remove(k)
@@ -683,7 +734,7 @@ def _fit_samples(
         raise ValueError(f"aspects must hold 1 and lie in {ASPECT_RANGE}")
     lobes_all = [(kind, r) for kind in kinds if kind in MICROFACET_KINDS for r in dictionary]
     vs = [_View(*at, shadowing, lobes_all, diffuse_quantile=diffuse_quantile) for at in samples]
-    fres_cols = np.array([False] + [kind == FRESNEL for kind, _ in lobes_all])
+    fres_cols = np.array([False] + [kind in GREY_KINDS for kind, _ in lobes_all])
     # The lobes among round ones, then each Glossy lobe's aspect per view (the first texel stays
     # round: at normal view the plane of incidence, the lobe's tangent, is undefined).
     pick = _greedy(
@@ -699,28 +750,28 @@ def _fit_samples(
     fresnel = [kind == FRESNEL for kind, _ in chosen]
     round_q = aspects.index(1.0)
     stretch = len(aspects) > 1 and not all(fresnel)
-    velvets = [(VELVET, s) for s in VELVET_SIGMA] if VELVET in kinds else []
+    extras = [(VELVET, s) for s in VELVET_SIGMA] if VELVET in kinds else []
+    extras += [(ROUGH_DIFFUSE, 1.0)] if ROUGH_DIFFUSE in kinds else []
     qi = np.full((len(chosen), len(vs)), round_q)  # each lobe's aspect per view, into ``aspects``
-    if stretch or velvets:
-        # the chosen lobes at every aspect (or round), and the Velvet candidates after them
+    if stretch or extras:
+        # the chosen lobes at every aspect (or round), and the extras' candidates after them
         used = aspects if stretch else (1.0,)
         nq, q1 = len(used), used.index(1.0)
-        vs = [v.with_lobes(chosen + velvets, used) for v in vs]
+        vs = [v.with_lobes(chosen + extras, used) for v in vs]
         if stretch:
             round_lobes = tuple(k for k, f in enumerate(fresnel) if f)
             qi = _choose_aspects(vs, len(chosen), nq, [v.share for v in vs], q1, round_lobes=round_lobes)
         n_micro = len(chosen)
         cols = 1 + np.arange(n_micro)[:, None] * nq + (qi if stretch else np.full_like(qi, q1))  # (K, views)
-        if velvets:
-            k = _velvet_pick(vs, cols, nq, q1, fresnel, len(velvets))
-            if k is not None:
-                chosen.append(velvets[k])
-                fresnel.append(False)
-                qi = np.vstack([qi, np.full((1, len(vs)), round_q)])
-                cols = np.vstack([cols, np.full((1, len(vs)), 1 + (n_micro + k) * nq + q1)])
-                rest = _prune(vs, cols, fresnel, nq)
-                chosen, fresnel = [chosen[i] for i in rest], [fresnel[i] for i in rest]
-                qi, cols = qi[rest], cols[rest]
+        grey_cols = _grey_columns(vs, [kind in GREY_KINDS for kind, _ in chosen + extras], nq)
+        picked = _extras_pick(vs, cols, nq, q1, extras, grey_cols) if extras else []
+        if picked:
+            chosen += [extras[k] for k in picked]
+            qi = np.vstack([qi, np.full((len(picked), len(vs)), round_q)])
+            cols = np.vstack([cols] + [np.full((1, len(vs)), 1 + (n_micro + k) * nq + q1) for k in picked])
+            rest = _prune(vs, cols, len(picked), grey_cols)
+            chosen, qi, cols = [chosen[i] for i in rest], qi[rest], cols[rest]
+        fresnel = [kind in GREY_KINDS for kind, _ in chosen]
     else:  # round lobes: their columns in the dictionary's normal equations
         cols = np.repeat(1 + np.array(pick)[:, None], len(vs), axis=1)
     W = np.zeros((1 + len(chosen), n_views, 3))
