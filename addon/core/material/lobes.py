@@ -35,8 +35,14 @@ read from the lookup like the colours (alpha sqrt(q) across, alpha / sqrt(q) in 
 nodes give Cycles the tangent N x I and the matching anisotropy). Highlights round about the
 mirror direction are stretched across in half vectors, by about 1 / cos theta_o; the broad
 lobes of a widened table (σ̃² ×2) lie in the plane (q < 1). After the
-roughness values, each lobe's aspect is chosen per view by coordinate descent. EEVEE ignores
-anisotropy: for a scene it renders the lobes are fitted round (``aspects=(1.0,)``).
+roughness values, each lobe's aspect is chosen per view by coordinate descent.
+
+Then a Velvet (Ashikhmin's, 3.x's Velvet BSDF and 4.x's Sheen) and a rough Diffuse (white, at
+roughness 1, mixed in by a grey factor) may join them, each where it takes half a point off
+the error, and the lobes they made redundant are dropped: the grazing rise and retro-reflection
+of broad, widened tables, which no microfacet lobe draws. EEVEE ignores anisotropy and draws
+neither as Cycles does: for a scene it renders the lobes are round microfacet lobes
+(``closures_for``).
 """
 
 from __future__ import annotations
@@ -539,7 +545,8 @@ def _cost_fn(vs, capped_cols=None, residual=False):
     """The pixel-share weighted cost per view of a set of columns per view, for the channels'
     sum (a quick stand-in for the three channels while lobes are chosen: it ranks the
     candidates, but its constant is the channels' own norms, not their sum's, so it is no
-    squared residual and may fall below 0: measured tables then take all N_LOBES; with
+    squared residual and may fall below 0, where ``_greedy``'s MIN_GAIN stop never acts and
+    all N_LOBES are taken (ilm_l3_37_matte σ̃² ×2); the fits measured in BENCHMARKS are made so; with
     ``residual`` the sum's own norm, the squared residual of fitting the sum); the columns flagged in
     ``capped_cols`` (Fresnel lobes, one weight for the three channels) capped at 3 FRESNEL_MAX,
     the diffuse (column 0) at the sum of its caps per channel."""
@@ -602,7 +609,7 @@ def _choose_aspects(vs, n_lobes, n_aspects, shares, round_index=0, round_views=(
     lobes, each lobe in turn taking per view the aspect that costs least with the others fixed.
     Views in ``round_views`` and lobes in ``round_lobes`` (Fresnel lobes) keep aspect 1 (index
     ``round_index``)."""
-    capped = np.zeros(vs[0].Ga.shape[0], bool)  # the views may hold more lobes after these (Velvets)
+    capped = np.zeros(vs[0].Ga.shape[0], bool)  # the views may hold more lobes after these (the extras)
     for k in round_lobes:
         capped[1 + k * n_aspects : 1 + (k + 1) * n_aspects] = True
     costs, V = _cost_fn(vs, capped), len(vs)

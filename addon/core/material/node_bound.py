@@ -19,7 +19,10 @@ holds, at 18 roughness values from 0.01 to 1 (those of ``lobes.DICTIONARY`` amon
 - Velvet (3.x's Velvet BSDF, 4.x's Sheen BSDF with the Ashikhmin distribution: Ashikhmin's
   velvet, the fit's 6 widths) and 3.x's Principled sheen (1 - wi.h)^5;
 - Diffuse with roughness (the classic Oren-Nayar at its roughest, Fujii's at roughness 1: with
-  Lambert they span every roughness) and 3.x's Principled diffuse at five roughness values;
+  Lambert they span every roughness; 4.x adds to Fujii's a multiple-scattering term that grows
+  with the colour, so there the single-scattering shape is what a dark rough Diffuse tends to,
+  a shade under what it draws: the bound stays a lower bound) and 3.x's Principled diffuse at
+  five roughness values;
 - Toon Glossy cones about the mirror direction (14 sizes from 0.5° to 60°), whose mix is any
   radial profile.
 
