@@ -104,6 +104,13 @@ SHADOWING = ("correlated", "separable")
 GGX, BECKMANN, FRESNEL, VELVET, ROUGH_DIFFUSE = "ggx", "beckmann", "ggx_fresnel", "velvet", "rough_diffuse"
 KINDS = (GGX, BECKMANN, FRESNEL, VELVET, ROUGH_DIFFUSE)
 MICROFACET_KINDS = (GGX, BECKMANN, FRESNEL)
+KIND_NAMES = (
+    (GGX, "GGX"),
+    (BECKMANN, "Beckmann"),
+    (FRESNEL, "GGX × Fresnel"),
+    (VELVET, "Velvet"),
+    (ROUGH_DIFFUSE, "rough Diffuse"),
+)
 GREY_KINDS = (FRESNEL, ROUGH_DIFFUSE)  # one weight for the three channels, at most FRESNEL_MAX (a Mix Shader's factor)
 VELVET_SIGMA = (0.1, 0.2, 0.35, 0.5, 0.7, 1.0)
 EXTRA_MIN_GAIN = 0.005  # the relative error a Velvet or a rough diffuse must take off to be drawn (half a point)
@@ -153,8 +160,7 @@ class LobeFit:
     def describe(self) -> str:
         """The lobes in words: "2 GGX (1 stretched), 1 Beckmann, 1 GGX × Fresnel"."""
         parts = []
-        names = ((GGX, "GGX"), (BECKMANN, "Beckmann"), (FRESNEL, "GGX × Fresnel"), (VELVET, "Velvet"))
-        for kind, name in names + ((ROUGH_DIFFUSE, "rough Diffuse"),):
+        for kind, name in KIND_NAMES:
             ks = [k for k, v in enumerate(self.kinds) if v == kind]
             if ks:
                 q = np.asarray(self.aspect, float)[ks]
@@ -609,9 +615,7 @@ def _choose_aspects(vs, n_lobes, n_aspects, shares, round_index=0, round_views=(
     lobes, each lobe in turn taking per view the aspect that costs least with the others fixed.
     Views in ``round_views`` and lobes in ``round_lobes`` (Fresnel lobes) keep aspect 1 (index
     ``round_index``)."""
-    capped = np.zeros(vs[0].Ga.shape[0], bool)  # the views may hold more lobes after these (the extras)
-    for k in round_lobes:
-        capped[1 + k * n_aspects : 1 + (k + 1) * n_aspects] = True
+    capped = _grey_columns(vs, [k in round_lobes for k in range(n_lobes)], n_aspects)
     costs, V = _cost_fn(vs, capped), len(vs)
     pick = np.full((n_lobes, V), round_index)
     allowed = np.ones((n_aspects, V), bool)
@@ -651,16 +655,19 @@ def _extras_pick(vs, cols, nq, q1, extras, grey_cols):
     one that lowers ``_lobe_costs`` most, then again among the other kind, each only if by
     MIN_GAIN of it and EXTRA_MIN_GAIN of the relative BRDF error it stands for (a closure more
     only where it shows: on a table the lobes already meet, a few per cent of a small residual
-    is not worth a node)."""
+    is not worth a node). Returns (their indices into ``extras``, ``cols`` with their rows)."""
     K, V = cols.shape
     cost, norm = _lobe_costs(vs, grey_cols)
+
+    def with_extra(k):
+        return np.vstack([cols, np.full((1, V), 1 + (K + k) * nq + q1)])
+
     picked = []
     for _ in range(2):
         last = cost(cols)
-        trials = []
-        for k, (kind, _) in enumerate(extras):
-            if all(extras[p][0] != kind for p in picked):
-                trials.append((cost(np.vstack([cols, np.full((1, V), 1 + (K + k) * nq + q1)])), k))
+        trials = [
+            (cost(with_extra(k)), k) for k, (kind, _) in enumerate(extras) if all(extras[p][0] != kind for p in picked)
+        ]
         if not trials:
             break
         c, k = min(trials)
@@ -668,8 +675,8 @@ def _extras_pick(vs, cols, nq, q1, extras, grey_cols):
         if c > (1.0 - MIN_GAIN) * last or points < EXTRA_MIN_GAIN:
             break
         picked.append(k)
-        cols = np.vstack([cols, np.full((1, V), 1 + (K + k) * nq + q1)])
-    return picked
+        cols = with_extra(k)
+    return picked, cols
 
 
 def _grey_columns(vs, grey, nq):
@@ -768,14 +775,12 @@ def _fit_samples(
         if stretch:
             round_lobes = tuple(k for k, f in enumerate(fresnel) if f)
             qi = _choose_aspects(vs, len(chosen), nq, [v.share for v in vs], q1, round_lobes=round_lobes)
-        n_micro = len(chosen)
-        cols = 1 + np.arange(n_micro)[:, None] * nq + (qi if stretch else np.full_like(qi, q1))  # (K, views)
+        cols = 1 + np.arange(len(chosen))[:, None] * nq + (qi if stretch else np.full_like(qi, q1))  # (K, views)
         grey_cols = _grey_columns(vs, [kind in GREY_KINDS for kind, _ in chosen + extras], nq)
-        picked = _extras_pick(vs, cols, nq, q1, extras, grey_cols) if extras else []
+        picked, cols = _extras_pick(vs, cols, nq, q1, extras, grey_cols) if extras else ([], cols)
         if picked:
             chosen += [extras[k] for k in picked]
             qi = np.vstack([qi, np.full((len(picked), len(vs)), round_q)])
-            cols = np.vstack([cols] + [np.full((1, len(vs)), 1 + (n_micro + k) * nq + q1) for k in picked])
             rest = _prune(vs, cols, len(picked), grey_cols)
             chosen, qi, cols = [chosen[i] for i in rest], qi[rest], cols[rest]
         fresnel = [kind in GREY_KINDS for kind, _ in chosen]
