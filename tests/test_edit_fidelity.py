@@ -238,3 +238,31 @@ def test_an_energy_edit_of_a_broad_lobe_promises_its_own_variance(sample_table):
         res = edit(table, t, prof, fit)
         assert res.target_sigma2 == fit["sigma2"] and not res.warnings
         assert res.fidelity.worst("variance_worst") < 1e-4 and res.fidelity.worst("energy") < 1e-4
+
+
+@pytest.mark.slow
+def test_the_region_side_by_side_is_the_region_in_order(glossy, glossy_region, monkeypatch):
+    """The region's tilt and curve points run on two threads: the same numbers as one after
+    another, and a stop asked for while they run ends every one of its threads."""
+    import threading
+
+    from addon.core.edit import solve
+    from addon.core.edit.reciprocal import Superseded
+
+    table, prof, fit = glossy
+    monkeypatch.setattr(solve, "REGION_WORKERS", 1)
+    in_order = solve.roughness_region(table, prof, fit)
+    for a in ("sigma2", "mu_min", "mu_max"):
+        np.testing.assert_array_equal(getattr(glossy_region, a), getattr(in_order, a))
+    assert glossy_region.curve == in_order.curve
+    monkeypatch.setattr(solve, "REGION_WORKERS", 2)
+    asked = []
+
+    def stop():
+        asked.append(threading.current_thread().name)
+        return len(asked) > 3  # after the first points have started, on both threads
+
+    with pytest.raises(Superseded):
+        solve.roughness_region(table, prof, fit, stop=stop)
+    assert any(n.startswith("brdf_moments-region") for n in asked)
+    assert not [t for t in threading.enumerate() if t.name.startswith("brdf_moments-region")]

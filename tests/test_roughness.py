@@ -113,6 +113,29 @@ def test_a_phong_lobe_over_a_lambertian_keeps_its_floor_and_widens_with_s():
     assert tables[1.4].rho.max() <= 2.0 * table.rho.max()
 
 
+@pytest.mark.parametrize("name, bound", [("rgl/chm_orange", 1.0), ("rgl/vch_golden_yellow", 0.0)])
+def test_a_floor_at_its_bound_is_the_least_misfit_near_it(name, bound):
+    """Most measured tables' floor is the paper's (t = 1) or none (t = 0): the search stops at
+    the bound when the misfit still falls within EDGE of it. The slow reference: the misfit on
+    a fine grid over the coarse grid's last step, none of it below the bound's."""
+    import samples
+    from addon.core.edit import floor as F
+    from addon.core.file.merl import read_merl
+
+    table = read_merl(samples.sample_path(name))
+    prof = compute_profiles(table)
+    kd, t = joint_floor(table, prof.kd)
+    rho, valid = table.rho.reshape(CUBE), table.valid.reshape(CUBE)
+    step = 1.0 / (F.COARSE - 1)
+    at_bound = [c for c in range(3) if prof.kd[c] > 0.0 and t[c] == bound]
+    assert at_bound
+    for c in at_bound:
+        cells = F._Cells(rho[c], valid[c])
+        fine = bound + (step if bound == 0.0 else -step) * np.linspace(0.0, 1.0, 21)
+        misfits = [cells.misfit(x * prof.kd[c])[0] for x in fine]
+        assert int(np.argmin(misfits)) == 0
+
+
 def test_the_floor_of_a_height_correlated_plastic_is_its_true_floor():
     """At the paper's floor such a table reads better as separable: the form is chosen at every
     step of the search, not once at the start."""

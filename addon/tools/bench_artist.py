@@ -216,7 +216,8 @@ def bench_live(quick=False):
             f"{LIVE_SAMPLES} samples) — the first image —, then the full synthesis and the D = {d} px bake "
             f"({FINAL_SAMPLES}+{FINAL_SAMPLES}) that replaces it. The draft is one roughness synthesis at the scale "
             "the material's curve gives for the slider; the region (the curve and the tilt's reach) is computed once "
-            f"per analysis, as Analyse does: median {float(np.median(regions)):.1f} s, max {max(regions):.1f} s here.",
+            f"per analysis, as Analyse does: median {float(np.median(regions)):.1f} s, max {max(regions):.1f} s here "
+            f"({', '.join(f'{n} {t:.1f} s' for n, t in zip(names, regions))}).",
             "",
             "| material | σ̃² × | draft synthesis | draft bake | first image | full synthesis | full bake | "
             "refined image |",

@@ -292,6 +292,19 @@ def read_microfacets(spec, valid, forms=FORMS, sub=_ALL, judge=None) -> Reading 
     else:
         judge = np.asarray(judge, float).reshape(-1, RES_TH, RES_TD, RES_PD)[:, :, sub[0], sub[1]]
         judge = np.where(valid, judge, 0.0)
+    return read_subset(b, spec, valid, judge, forms, sub)
+
+
+def backscatter(spec_row0, valid_row0):
+    """The back-scattering values of a specular table from its first theta_d row alone, (C, TH,
+    1, PD) each: ``read_subset``'s ``b``."""
+    return _backscatter(spec_row0.mean(axis=0), valid_row0.all(axis=0))
+
+
+def read_subset(b, spec, valid, judge, forms=FORMS, sub=_ALL) -> Reading | None:
+    """``read_microfacets`` on the cells ``sub`` picks, already picked: ``b`` the back-scattering
+    values (``backscatter``), ``spec``, ``valid`` and ``judge`` (0 where missing) on ``sub``'s
+    cells. The floor's search calls it directly, so that each of its steps touches only them."""
     best = None
     ci, co = cosines(sub)
     for form in forms:

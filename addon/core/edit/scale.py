@@ -94,20 +94,23 @@ class MaterialCurve:
         return {"scales": clean(self.scales), "mu": clean(self.mu), "sigma2": clean(self.sigma2)}
 
 
-def material_curve(src: Source, theta_o, split=True, scales=CURVE_SCALES, stop=None, fit1=None) -> MaterialCurve:
+def material_curve(
+    src: Source, theta_o, split=True, scales=CURVE_SCALES, stop=None, fit1=None, pool=None
+) -> MaterialCurve:
     """The material's curve: one synthesis and one re-measure per scale (``fit1``: the table's
-    own fit, measured as ``measure`` does, stands for s = 1)."""
-    mu, s2 = [], []
-    for s in scales:
+    own fit, measured as ``measure`` does, stands for s = 1). ``pool``: an executor the scales
+    are measured on side by side (each point reads ``src`` only)."""
+
+    def point(s):
         if stop is not None and stop():
             raise Superseded
         if s == 1.0 and fit1 is not None:
-            fit = fit1
-        else:
-            table = scale_roughness(src, float(s))[0]
-            fit = measure(table, theta_o, split)[1]
-        mu.append(np.nan if fit.get("mu_slope") is None else fit["mu_slope"])
-        s2.append(np.nan if fit.get("sigma2") is None else fit["sigma2"])
+            return fit1
+        return measure(scale_roughness(src, float(s))[0], theta_o, split)[1]
+
+    fits = list(pool.map(point, scales)) if pool is not None else [point(s) for s in scales]
+    mu = [np.nan if f.get("mu_slope") is None else f["mu_slope"] for f in fits]
+    s2 = [np.nan if f.get("sigma2") is None else f["sigma2"] for f in fits]
     return MaterialCurve(np.asarray(scales, float), np.asarray(mu, float), np.asarray(s2, float))
 
 

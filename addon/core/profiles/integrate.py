@@ -421,11 +421,14 @@ def centred_view_sums(
         px.append(px[-1] * ex)
         pp.append(pp[-1] * ep)
     out = np.zeros((v.shape[0], len(ex_)))
-    # By the order o of the local moment: shifts of order up to max_order - o are needed.
+    # Every shift's weighted cells once (C, shifts, n): the shifts an order o needs, those of
+    # order up to max_order - o, are the first ones (exponents are ordered by total order).
+    vx = [v * p for p in px]
+    q_all = np.stack([vx[s] * pp[t] for s, t in ex_], axis=1)
     for o in range(max_order + 1):
         loc_cols = [index[(o - j, j)] for j in range(o + 1)]
         shifts = exponents(max_order - o)
-        q = np.stack([v * px[s] * pp[t] for s, t in shifts], axis=1)  # (C, shifts, n)
+        q = q_all[:, : len(shifts)]
         prod = q @ local[:, loc_cols]  # (C, shifts, o + 1)
         for si, (s, t) in enumerate(shifts):
             for li, j in enumerate(range(o + 1)):
