@@ -823,9 +823,8 @@ def roughness_region(table, prof, fit, src=None, stop=None):
     # The tilt's run and the curve's points are independent and spend most of their time in
     # numpy, which lets go of the GIL: on two cores side by side they take about three quarters
     # of the time they take in order (colodur_kalahari_2a, reading made: 6.0-6.3 s in order,
-    # 4.5-5.0 s side by side, quiet). The
-    # pool is the region's own: the tilt's sums use reciprocal's, and a task waiting on its own
-    # pool could wait for ever.
+    # 4.5-5.0 s side by side, quiet). The pool is the region's own: the tilt's sums use
+    # reciprocal's, and a task waiting on its own pool could wait for ever.
     workers = min(REGION_WORKERS, os.cpu_count() or 1)
     pool = ThreadPoolExecutor(workers, thread_name_prefix="brdf_moments-region") if workers > 1 else None
     try:
