@@ -4,7 +4,7 @@ The paper's floor (the minimum of the 45 deg slice, ``profiles.diffuse_floor``) 
 on a plastic: a roughness edit through it carries that tail as if it were diffuse. The edit's
 floor is instead the one under which the rest of the table is best read as microfacets: per
 channel kd = t * kd_paper, t in [0, 1], minimising the misfit of rho - kd against its own
-microfacet reading (``microfacet.read_microfacets``) over a subset of the cells. The misfit is
+microfacet reading (``microfacet.read_subset``) over a subset of the cells. The misfit is
 taken on rho - kd itself, not on its positive part: a floor above the true one leaves cells
 below it, which no reading explains, so it is not rewarded for cutting the lobe's tail off.
 Bounded above by the paper's floor: on measured tables the joint fit is less reliable, and a
@@ -48,23 +48,18 @@ class _Cells:
         ci, co = M.cosines(sub)
         self.w = np.maximum(ci, 0.0) * np.maximum(co, 0.0)
 
-    def misfit(self, kd_c, forms=FORMS):
+    def misfit(self, kd_c):
+        """The misfit of rho - kd_c against its microfacet reading, in absolute terms (sum of
+        cos_i cos_o (rho - kd - reading)^2), and the masking form read (inf, None: no lobe).
+        Absolute, not relative to the lobe's own energy: a floor left in the lobe adds energy the
+        reading explains well, and a relative misfit rewarded that (a Phong lobe over a
+        Lambertian 0.1 read its floor as 0, and every edit then spread the diffuse as lobe tail)."""
         judge = np.where(self.valid, self.rho - kd_c, 0.0)
         b = M.backscatter(np.maximum(self.rho0 - kd_c, 0.0) * self.valid0, self.valid0)
-        r = M.read_subset(b, np.maximum(judge, 0.0), self.valid, judge, forms, self.sub)
+        r = M.read_subset(b, np.maximum(judge, 0.0), self.valid, judge, FORMS, self.sub)
         if r is None:
             return math.inf, None
         return r.misfit * float(np.sum(self.w * judge[0] * judge[0])), r.form
-
-
-def floor_misfit(rho_c, valid_c, kd_c, sub=SUBSET, forms=FORMS):
-    """The misfit of one channel's rho - kd_c against its microfacet reading, in absolute terms
-    (sum of cos_i cos_o (rho - kd - reading)^2), and the masking form read (inf, None: no lobe).
-    Absolute, not relative to the lobe's own energy: a floor left in the lobe adds energy the
-    reading explains well, and a relative misfit rewarded that (a Phong lobe over a Lambertian
-    0.1 read its floor as 0, and every edit then spread the diffuse as lobe tail).
-    rho_c, valid_c: (RES_TH, RES_TD, RES_PD)."""
-    return _Cells(rho_c, valid_c, sub).misfit(kd_c, forms)
 
 
 def _golden(f, lo, hi, steps):

@@ -275,24 +275,14 @@ def _areas_at_cells(area, sub):
     return [np.maximum(v[i0] * (1.0 - f) + v[i0 + 1] * f, c) for i0, f, c in _area_plan(sub)]
 
 
-def read_microfacets(spec, valid, forms=FORMS, sub=_ALL, judge=None) -> Reading | None:
+def read_microfacets(spec, valid, forms=FORMS) -> Reading | None:
     """The microfacet reading of a specular table ``spec`` (C, N_CELLS) with mask ``valid``: the
-    masking form that fits it better, or None when the table holds no lobe to read. ``sub``
-    (theta_d, phi_d slices, the first starting at row 0) reads a subset of the cells, for the
-    floor's search; the NDF is taken from the channel average. ``judge`` (same shape as spec):
-    what the misfit compares the reading with, if not ``spec`` itself (the floor's search
-    passes rho - kd unclipped)."""
+    masking form that fits it better, or None when the table holds no lobe to read. The NDF is
+    taken from the channel average. (The floor's search reads a subset of the cells against
+    rho - kd unclipped: ``read_subset``.)"""
     spec = np.asarray(spec, float).reshape(-1, RES_TH, RES_TD, RES_PD)
     valid = np.asarray(valid, bool).reshape(-1, RES_TH, RES_TD, RES_PD)
-    b = _backscatter(spec[:, :, :1, :].mean(axis=0), valid[:, :, :1, :].all(axis=0))
-    spec = spec[:, :, sub[0], sub[1]]
-    valid = valid[:, :, sub[0], sub[1]]
-    if judge is None:
-        judge = spec
-    else:
-        judge = np.asarray(judge, float).reshape(-1, RES_TH, RES_TD, RES_PD)[:, :, sub[0], sub[1]]
-        judge = np.where(valid, judge, 0.0)
-    return read_subset(b, spec, valid, judge, forms, sub)
+    return read_subset(backscatter(spec[:, :, :1, :], valid[:, :, :1, :]), spec, valid, spec, forms)
 
 
 def backscatter(spec_row0, valid_row0):
