@@ -57,8 +57,6 @@ from .microfacet import (
 S_RANGE = ROUGHNESS_RANGE  # the roughness scales the operator takes
 FADE_COS = (0.01, 0.06)  # the horizon fade's band in cos of the lower direction (0.6 to 3.4 deg)
 CUBE = (3, RES_TH, RES_TD, RES_PD)
-ENERGY_STRIDE = 3  # the energy bound's quick look: every third analysed view and the last (0.05 s)
-ENERGY_MARGIN = 0.9  # below this share of the bound on those views, no view between them reaches it
 ENERGY_CHUNK = 10  # views per step of the exact bound's sums
 
 
@@ -159,24 +157,35 @@ def _energy_bound(src: Source, spec) -> int:
     linearly between nodes at every other analysed view. With E[k, n, m] the albedo of view k
     that cells put on nodes n (theta_i) and m (theta_o), view k's albedo is c^T E[k] c exactly,
     so c is solved on that small array: multiplicative steps move each node's c towards what
-    its views allow, up to 1, which it keeps wherever the bound holds."""
+    its views allow, up to 1, which it keeps wherever the bound holds.
+
+    E >= 0 and c <= 1, so a view within its bound at c = 1 stays within it whatever c is, and a
+    node whose views are all within keeps c = 1 through every step (each view's headroom is
+    at least 1). So E is summed only for the views of nodes that own a view over the bound, in
+    the channels that have one: the same c as from every view's E, for the price of the
+    albedo alone on a table that is within its bound everywhere (the usual case)."""
     views = np.asarray(src.views, float)
     limit = np.maximum(np.maximum(src.albedo, 1.0) - src.floor_albedo, 0.0)  # (V, 3)
     valid = src.table.valid
-    checked = sorted(set(range(0, len(views), ENERGY_STRIDE)) | {len(views) - 1})
-    a = directional_albedo(MerlTable(spec.reshape(3, -1), valid, None), views, ENERGY_STRIDE)
-    if np.all(a <= ENERGY_MARGIN * limit[checked]):
-        return 0  # far below the bound on every third view: no view between them reaches it
+    flat = spec.reshape(3, -1)
+    a = directional_albedo(MerlTable(flat, valid, None), views)
+    # E's sums are this albedo to float32 rounding (its corner weights): a view this close to
+    # its bound is summed too, so E alone decides which views are over, as it always has.
+    near = a > limit * (1.0 - 1e-5)
+    if not near.any():
+        return 0
     op = get_operator(views)
     nv = len(views)
     (ni, fi), (no, fo), owner, nn = _cell_nodes(views)
-    flat = spec.reshape(3, -1)
+    channels = [ch for ch in range(3) if near[:, ch].any()]
+    busy = np.zeros(nn, bool)
+    busy[owner[near.any(axis=1)]] = True
+    need = busy[owner]  # (V,) the views the solve's steps read
     masked = np.where(valid, flat, 0.0)
     Es = np.zeros((3, nv * nn * nn))
     # A few views at a time: each numpy call stays short, so a worker thread doing this (the
     # live preview) never holds the GIL long enough to stall Blender's window.
-    for k0 in range(0, nv, ENERGY_CHUNK):
-        k1 = min(k0 + ENERGY_CHUNK, nv)
+    for k0, k1 in _runs(need, ENERGY_CHUNK):
         first, last = int(op.offsets[k0]), int(op.offsets[k1])
         cells = op.cells[first:last]
         base = np.repeat(np.arange(k1 - k0, dtype=np.int32) * (nn * nn), np.diff(op.offsets[k0 : k1 + 1]))
@@ -187,10 +196,10 @@ def _energy_bound(src: Source, spec) -> int:
             for do, wo in ((0, 1.0 - foe), (1, foe)):
                 idx = base + np.minimum(nie + di, nn - 1) * nn + np.minimum(noe + do, nn - 1)
                 w = (wi * wo) * alb
-                for ch in range(3):
+                for ch in channels:
                     Es[ch, rows] += np.bincount(idx, vals[ch] * w, (k1 - k0) * nn * nn)
     bounded = 0
-    for ch in range(3):
+    for ch in channels:
         E = Es[ch]
         E = E.reshape(nv, nn, nn)
         lim = limit[:, ch]
@@ -200,6 +209,21 @@ def _energy_bound(src: Source, spec) -> int:
         bounded += int((E.sum(axis=(1, 2)) > lim).sum())
         flat[ch] *= _at_cells(c, ni, fi) * _at_cells(c, no, fo)
     return bounded
+
+
+def _runs(mask, longest):
+    """(start, stop) of the runs of True in ``mask``, none longer than ``longest``."""
+    out, k, n = [], 0, len(mask)
+    while k < n:
+        if not mask[k]:
+            k += 1
+            continue
+        stop = k
+        while stop < n and mask[stop] and stop - k < longest:
+            stop += 1
+        out.append((k, stop))
+        k = stop
+    return out
 
 
 def bound_energy(src: Source, table: MerlTable) -> tuple[MerlTable, int]:
