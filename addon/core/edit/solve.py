@@ -808,35 +808,54 @@ def roughness_region(table, prof, fit, src=None, stop=None):
     itself, for a tilt of REGION_TILT). Computed once per analysis. None when the table holds
     no lobe a microfacet reading can read."""
     import os
-    from concurrent.futures import ThreadPoolExecutor
+    from concurrent.futures import Future, ThreadPoolExecutor
 
     from .scale import material_curve
     from .scale import measure as measure_table
 
-    if src is None:
-        src = roughness_source(table, prof)
-    if src is None:  # nothing a microsurface reading can hold (a table of a few cells)
-        return None
-    own_prof, own_fit = measure_table(table, prof.theta_o, prof.split)
-    if stop is not None and stop():
-        raise R.Superseded
-    # The tilt's run and the curve's points are independent and spend most of their time in
-    # numpy, which lets go of the GIL: on two cores side by side they take about three quarters
-    # of the time they take in order (colodur_kalahari_2a, reading made: 6.0-6.3 s in order,
-    # 4.5-5.0 s side by side, quiet). The pool is the region's own: the tilt's sums use
-    # reciprocal's, and a task waiting on its own pool could wait for ever.
+    # The tilt's run, the reading (when not made yet) and the curve's points are independent
+    # and spend most of their time in numpy, which lets go of the GIL: on two cores side by
+    # side they take about three quarters of the time they take in order (colodur_kalahari_2a,
+    # reading made: 6.0-6.3 s in order, 4.5-5.0 s side by side, quiet). The tilt, the longest,
+    # starts first, on the table's own measurement, while this thread makes the reading. The
+    # pool is the region's own: the tilt's sums use reciprocal's, and a task waiting on its
+    # own pool could wait for ever.
     workers = min(REGION_WORKERS, os.cpu_count() or 1)
     pool = ThreadPoolExecutor(workers, thread_name_prefix="brdf_moments-region") if workers > 1 else None
+    own: Future = Future()
+    given_up = []  # set when the region is not wanted after all: the tilt stops at its next step
+    halt = lambda: bool(given_up) or (stop is not None and stop())  # noqa: E731
+
+    def own_then_tilt():
+        try:
+            own.set_result(measure_table(table, prof.theta_o, prof.split))
+        except BaseException as err:
+            own.set_exception(err)
+            raise
+        if halt():
+            raise R.Superseded
+        own_prof, own_fit = own.result()
+        # The tilt's reach, measured one way and taken as the same the other (ggx_glossy:
+        # 0.038 and 0.035 for +-0.1): half the cost of the region's tilt runs.
+        return tilt_lobes(table, own_prof, own_fit, REGION_TILT, stop=halt)
+
     try:
-        # The tilt's reach, measured one way and taken as the same the other (ggx_glossy: 0.038
-        # and 0.035 for +-0.1): half the cost of the region's tilt runs. Started first, the
-        # longest task.
-        tilt = pool.submit(tilt_lobes, table, own_prof, own_fit, REGION_TILT, stop=stop) if pool else None
-        curve = material_curve(src, prof.theta_o, prof.split, stop=stop, fit1=own_fit, pool=pool)
-        tilted = tilt.result() if tilt else tilt_lobes(table, own_prof, own_fit, REGION_TILT, stop=stop)
+        tilt = pool.submit(own_then_tilt) if pool else None
+        if src is None:
+            src = roughness_source(table, prof)
+        if src is None:  # nothing a microsurface reading can hold (a table of a few cells)
+            given_up.append(True)
+            return None
+        if tilt is None:
+            tilted = own_then_tilt()
+        curve = material_curve(src, prof.theta_o, prof.split, stop=halt, fit1=own.result()[1], pool=pool)
+        if tilt is not None:
+            tilted = tilt.result()
     finally:
+        given_up.append(True)  # done, or leaving on an error: nothing more of the tilt is wanted
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
+    own_fit = own.result()[1]
     got = tilted[2].get("mu_slope")
     reach = [0.0 if got is None else abs(got - own_fit["mu_slope"])] * 2
     ok = curve.usable()
