@@ -57,6 +57,11 @@ from .microfacet import (
 S_RANGE = ROUGHNESS_RANGE  # the roughness scales the operator takes
 FADE_COS = (0.01, 0.06)  # the horizon fade's band in cos of the lower direction (0.6 to 3.4 deg)
 CUBE = (3, RES_TH, RES_TD, RES_PD)
+# The bound's quick look, on every synthesis: every third analysed view and the last (0.035 s,
+# against 0.1 s for all 90, three to five times an Apply); below this share of the bound there,
+# no view between them reaches it.
+ENERGY_STRIDE = 3
+ENERGY_MARGIN = 0.9
 ENERGY_CHUNK = 10  # views per step of the exact bound's sums
 
 
@@ -162,13 +167,18 @@ def _energy_bound(src: Source, spec) -> int:
     E >= 0 and c <= 1, so a view within its bound at c = 1 stays within it whatever c is, and a
     node whose views are all within keeps c = 1 through every step (each view's headroom is
     at least 1). So E is summed only for the views of nodes that own a view over the bound, in
-    the channels that have one: the same c as from every view's E, for the price of the
-    albedo alone on a table that is within its bound everywhere (the usual case)."""
+    the channels that have one: the same c as from every view's E. A table far below its bound
+    on every third view (the usual case) pays only that look; one near it, every view's
+    albedo too."""
     views = np.asarray(src.views, float)
     limit = np.maximum(np.maximum(src.albedo, 1.0) - src.floor_albedo, 0.0)  # (V, 3)
     valid = src.table.valid
     flat = spec.reshape(3, -1)
-    a = directional_albedo(MerlTable(flat, valid, None), views)
+    table = MerlTable(flat, valid, None)
+    checked = sorted(set(range(0, len(views), ENERGY_STRIDE)) | {len(views) - 1})
+    if np.all(directional_albedo(table, views, ENERGY_STRIDE) <= ENERGY_MARGIN * limit[checked]):
+        return 0  # far below the bound on every third view: no view between them reaches it
+    a = directional_albedo(table, views)
     # E's sums are this albedo to float32 rounding (its corner weights): a view this close to
     # its bound is summed too, so E alone decides which views are over, as it always has.
     near = a > limit * (1.0 - 1e-5)
