@@ -158,6 +158,26 @@ def test_identity_scale_returns_the_table_exactly(plastic):
     np.testing.assert_array_equal(out.valid, table.valid)
 
 
+def test_the_table_at_scale_one_is_measured_as_a_fresh_analysis_once(plastic):
+    """A mean-slope move alone edits at s = 1: the table's own measurement, kept with its source,
+    is what measuring the table afresh gives, every time, and a caller changing its copy
+    changes nothing kept."""
+    from addon.core.edit.scale import at_scale
+
+    table, prof = plastic
+    src = prepare(table, prof.kd, views=prof.theta_o)
+    fresh_prof, fresh_fit = measure(table, prof.theta_o)
+    first = at_scale(src, 1.0, prof.theta_o)
+    first.fit["sigma2"] = -1.0
+    first.profiles["avg"]["mu_theta"][:] = 0.0
+    again = at_scale(src, 1.0, prof.theta_o)
+    assert again.fit == fresh_fit
+    for ch in ("r", "g", "b", "avg"):
+        for k, v in fresh_prof[ch].items():
+            np.testing.assert_array_equal(again.profiles[ch][k], v)
+    np.testing.assert_array_equal(again.table.rho, table.rho)
+
+
 def test_edited_table_is_reciprocal_finite_nonnegative_and_keeps_missing_cells(plastic):
     """Reciprocity: the table is built per (theta_h, theta_d, phi_d) cell, which both
     directions share; check it on swapped directions read from the written table."""
@@ -335,3 +355,41 @@ def test_a_tilted_edit_returns_no_more_light_than_it_receives(sample_table):
         before = _albedo_by_quadrature(table, math.radians(deg))
         after = _albedo_by_quadrature(res.table, math.radians(deg))
         assert np.all(after <= np.maximum(before, 1.0) * 1.01), (deg, before, after)
+
+
+@pytest.mark.parametrize("peak_at_horizon", [False, True])
+def test_the_horizon_cap_is_the_plain_rule(peak_at_horizon):
+    """SPEC §3: near the horizon (the lower direction's cosine under HORIZON_COS) no cell grows by
+    more than the specular peak outside that band does. The tilt's cap against a plain reference:
+    per channel, the peaks taken over every cell outside the band, each band cell capped at its
+    old specular value times the growth; the rest unchanged, missing cells 0. With the largest
+    cell inside the band too (a sheen brighter at grazing views than its lobe)."""
+    from addon.core.edit.microfacet import cell_cosines
+    from addon.core.edit.solve import HORIZON_COS, _cap_horizon_growth
+    from addon.core.file.merl import MerlTable
+
+    rng = np.random.default_rng(3)
+    n = int(np.prod(CUBE[1:]))
+    kd = np.array([0.02, 0.05, 0.0])
+    valid = rng.random((3, n)) > 0.05
+    before = MerlTable(np.where(valid, kd[:, None] + rng.random((3, n)), 0.0), valid, None)
+    after = MerlTable(np.where(valid, kd[:, None] + 2.5 * rng.random((3, n)) ** 2, 0.0), valid, None)
+    low = np.minimum(*cell_cosines()).ravel()
+    band = low < HORIZON_COS
+    if peak_at_horizon:
+        cell = np.flatnonzero(band & valid.all(axis=0))[7]
+        after.rho[:, cell] = kd + 40.0
+        before.rho[:, cell] = kd + 30.0
+    got = _cap_horizon_growth(after, before, kd)
+
+    want = after.rho.copy()
+    for c in range(3):
+        spec_new, spec_old = np.maximum(after.rho[c] - kd[c], 0.0), np.maximum(before.rho[c] - kd[c], 0.0)
+        growth = max(spec_new[~band].max() / spec_old[~band].max(), 1.0)
+        capped = np.minimum(spec_new, spec_old * growth) + kd[c]
+        want[c] = np.where(band, capped, want[c])
+    want = np.where(valid, want, 0.0)
+    assert np.allclose(got.rho, want, rtol=1e-14, atol=0.0)
+    assert np.array_equal(got.valid, valid)
+    # The rule acts: band cells above the growth are held down, and held exactly where it says.
+    assert (got.rho < after.rho - 1e-9).sum() > 1000

@@ -166,20 +166,34 @@ _FAR_SOURCE: dict = {}
 
 
 def _far_geometry(op):
-    """Per (view, cell) pair of the operator: view index, centroid (x, phi) and weight, as
-    float32 arrays kept for the operator's lifetime (the far-energy check reads them per edit)."""
+    """Per (view, cell) pair of the operator: each view's run of pairs, centroid (x, phi) and
+    weight, as float32 arrays kept for the operator's lifetime (the far-energy check reads them per edit)."""
     if _FAR_GEOMETRY.get("op") is not op:
         offsets = np.asarray(op.offsets)
+        counts = np.diff(offsets)
         _FAR_GEOMETRY.clear()
         _FAR_GEOMETRY.update(
             op=op,
-            view=np.repeat(np.arange(len(offsets) - 1, dtype=np.int32), np.diff(offsets)),
+            counts=counts,
+            # Each view's pairs are one run (offsets): summed run by run, not scattered by index
+            # (np.bincount took 0.02 s a sum, six sums a table). An empty run is summed as 0.
+            starts=np.minimum(offsets[:-1], max(int(offsets[-1]) - 1, 0)),
+            empty=counts == 0,
             x=np.ascontiguousarray(op.centroid[:, 0], dtype=np.float32),
             phi2=np.ascontiguousarray(op.centroid[:, 1], dtype=np.float32) ** 2,
             w0=np.ascontiguousarray(op.weights[:, 0], dtype=np.float32),
             cells=np.ascontiguousarray(op.cells, dtype=np.int32),
         )
     return _FAR_GEOMETRY
+
+
+def _run_sums(values, g):
+    """(V,) float64 sums of ``values`` over each view's run of (view, cell) pairs."""
+    if len(values) == 0:
+        return np.zeros(len(g["counts"]))
+    out = np.add.reduceat(values, g["starts"], dtype=np.float64)
+    out[g["empty"]] = 0.0
+    return out
 
 
 def far_energy(edited, source, targets: ViewTargets, original: Profiles) -> np.ndarray:
@@ -195,20 +209,25 @@ def far_energy(edited, source, targets: ViewTargets, original: Profiles) -> np.n
     op = get_operator(theta)
     g = _far_geometry(op)
     kd = original.kd if original.split else np.zeros(3)
-    cells, view = g["cells"], g["view"]
+    cells = g["cells"]
     n = len(theta)
 
     def share(table, mean, var):
         """(V, 3): per channel, the slice's share of energy beyond FAR_WIDTHS widths."""
         spec = specular_part(table, kd, original.split, dtype=np.float32, with_average=False)[0]
         out = np.zeros((n, 3))
+        counts = g["counts"]
         for c in range(3):
-            values = spec[c][cells] * g["w0"]
-            centre = (np.nan_to_num(mean[:, c]) + theta).astype(np.float32)[view]
+            values = spec[c][cells]
+            values *= g["w0"]
+            d = np.repeat((np.nan_to_num(mean[:, c]) + theta).astype(np.float32), counts)
+            np.subtract(g["x"], d, out=d)
+            d *= d
+            d += g["phi2"]  # squared distance from the lobe's centre
             limit = FAR_WIDTHS**2 * np.maximum(np.nan_to_num(var[:, c], nan=1.0), 1e-12)
-            far = (g["x"] - centre) ** 2 + g["phi2"] > limit.astype(np.float32)[view]
-            total = np.bincount(view, weights=values, minlength=n)
-            beyond = np.bincount(view, weights=np.where(far, values, 0.0), minlength=n)
+            total = _run_sums(values, g)
+            values *= d > np.repeat(limit.astype(np.float32), counts)
+            beyond = _run_sums(values, g)
             with np.errstate(divide="ignore", invalid="ignore"):
                 out[:, c] = np.where(total > 0, beyond / total, 0.0)
         return out

@@ -35,7 +35,7 @@ bound holds, so microfacet tables, which keep their energy below it, are untouch
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -80,6 +80,9 @@ class Source:
     views: np.ndarray  # the analysis's view elevations (the energy bound's views)
     albedo: np.ndarray  # (views, 3) the table's own directional albedo
     floor_albedo: np.ndarray  # (views, 3) the floor's share of it
+    # The table's own (profiles, fit) as ``scale.measure`` makes them, by (views, split): an
+    # edit at s = 1 (a mean-slope move alone) and the region both need it (``scale.own``).
+    measured: dict = field(default_factory=dict, repr=False)
 
 
 def prepare(table: MerlTable, kd_paper, split=True, views=None) -> Source | None:

@@ -125,10 +125,24 @@ class ScaleSolution:
     report: dict
 
 
+def own(src: Source, theta_o, split=True, made=None):
+    """(profiles, fit) of the source table itself, as ``measure`` makes them: measured once per
+    source and views (``made``: a measurement of it already made, kept), handed out as copies.
+    The source is kept by its table's content (``roughness_source``), so this is too."""
+    import copy
+
+    key = (np.asarray(theta_o, float).tobytes(), bool(split))
+    if made is not None:
+        src.measured[key] = made
+    if key not in src.measured:
+        src.measured[key] = measure(src.table, theta_o, split)
+    return copy.deepcopy(src.measured[key])
+
+
 def at_scale(src: Source, s: float, theta_o, split=True) -> ScaleSolution:
     """The table at a roughness scale asked for directly, and its measurement."""
     table, report = scale_roughness(src, float(s))
-    prof, fit = measure(table, theta_o, split)
+    prof, fit = own(src, theta_o, split) if s == 1.0 else measure(table, theta_o, split)
     return ScaleSolution(float(s), table, prof, fit, 1, True, report)
 
 

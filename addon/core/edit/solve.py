@@ -499,14 +499,23 @@ def _cap_horizon_growth(out, before, kd):
     are capped at their value before times the specular peak's growth."""
     band, inner = _horizon_band()
     k = np.asarray(kd, float)[:, None]
-    new = np.maximum(out.rho - k, 0.0)
-    old_band = np.maximum(before.rho[:, band] - k, 0.0)
-    peak_new = new[:, inner].max(axis=1)
-    peak_old = np.maximum(before.rho[:, inner] - k, 0.0).max(axis=1)
+    # max(rho - kd, 0) over cells is max(max rho - kd, 0): rounding is monotone.
+    peak_new = np.maximum(_inner_max(out.rho, band, inner) - k[:, 0], 0.0)
+    peak_old = np.maximum(_inner_max(before.rho, band, inner) - k[:, 0], 0.0)
     growth = np.maximum(peak_new / np.maximum(peak_old, 1e-300), 1.0)[:, None]
-    new[:, band] = np.minimum(new[:, band], old_band * growth)
-    rho = np.where(out.valid, new + k, 0.0)
-    return MerlTable(rho, out.valid.copy(), None)
+    new = out.rho - k
+    np.maximum(new, 0.0, out=new)
+    new[:, band] = np.minimum(new[:, band], np.maximum(before.rho[:, band] - k, 0.0) * growth)
+    new += k
+    new *= out.valid  # missing cells 0
+    return MerlTable(new, out.valid.copy(), None)
+
+
+def _inner_max(rho, band, inner):
+    """(3,) the largest value of each channel outside the horizon band: the whole channel's
+    maximum where the band's is below it (no gather of the inner cells), else taken over them."""
+    whole, edge = rho.max(axis=1), rho[:, band].max(axis=1)
+    return np.array([whole[c] if whole[c] > edge[c] else rho[c, inner].max() for c in range(len(rho))])
 
 
 def _horizon_band():
@@ -813,6 +822,7 @@ def roughness_region(table, prof, fit, src=None, stop=None):
 
     from .scale import material_curve
     from .scale import measure as measure_table
+    from .scale import own as own_of_source
 
     # The tilt's run, the reading (when not made yet) and the curve's points are independent
     # and spend most of their time in numpy, which lets go of the GIL: on two cores side by
@@ -846,6 +856,7 @@ def roughness_region(table, prof, fit, src=None, stop=None):
     with one_thread() if pool else contextlib.nullcontext():
         try:
             tilt = pool.submit(own_then_tilt) if pool else None
+            read_here = src is None
             if src is None:
                 src = roughness_source(table, prof)
             if src is None:  # nothing a microsurface reading can hold (a table of a few cells)
@@ -855,6 +866,8 @@ def roughness_region(table, prof, fit, src=None, stop=None):
             curve = material_curve(src, prof.theta_o, prof.split, stop=halt, fit1=own.result()[1], pool=pool)
             if tilt is not None:
                 tilted = tilt.result()
+            if read_here or src.table is table:  # the source of this table: Apply's mean-slope moves reuse it
+                own_of_source(src, prof.theta_o, prof.split, made=own.result())
         finally:
             given_up.append(True)  # done, or leaving on an error: nothing more of the tilt is wanted
             if pool is not None:
