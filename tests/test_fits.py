@@ -187,3 +187,23 @@ def test_fit_set_has_joint_and_correlation_only_for_two_or_more():
     )
     assert set(many) == {"materials", "joint", "correlation"}
     assert many["correlation"]["a"] == pytest.approx(0.4, abs=0.05)
+
+
+def test_the_kept_knot_grid_gives_the_costs_made_afresh():
+    """The 1-degree knot grid's normal equations are kept per view grid: the costs they give
+    are those made afresh, on view grids coming and going past the kept number, and what is
+    kept cannot be written to."""
+    from addon.core.fits import curves as C
+
+    rng = np.random.default_rng(5)
+    grids = [np.radians(np.arange(0.0, 81.0, step)) for step in (1.0, 2.0, 2.5, 1.0)]
+    for t in grids:
+        y = np.exp(-t) + 0.05 * rng.random(len(t))
+        series = [(t, y), (t, 2.0 * y[::-1])]
+        kept = C._joint_cost(None, None, series, [1.0, 0.5])
+        afresh = C._joint_cost(*C._knot_grid(1.0), series, [1.0, 0.5])
+        np.testing.assert_array_equal(kept, afresh)
+        assert len(C._GRID) <= C.GRID_KEPT
+    basis, gram = C._grid_normal(grids[0])
+    with pytest.raises(ValueError):
+        basis[0, 0, 0] = 1.0

@@ -65,8 +65,37 @@ def _knot_grid(step_deg=1.0):
     return a[ok], b[ok]
 
 
+def _normal(t, theta0, theta1):
+    """The basis (..., n, 3) at views ``t`` for a batch of knot pairs and its Gram matrices
+    (..., 3, 3) for the normal equations. The tiny ridge only matters when no sample lies
+    past theta0 (then alpha1 and m1 are unconstrained and any value fits)."""
+    basis = energy_basis(t, theta0, theta1)
+    gram = np.einsum("...ni,...nj->...ij", basis, basis)
+    gram = gram + 1e-12 * np.trace(gram, axis1=-2, axis2=-1)[..., None, None] * np.eye(3)
+    return basis, gram
+
+
+_GRID: dict = {}
+GRID_KEPT = 2  # view grids whose coarse-knot normal equations are kept (8 MB each at 81 views)
+
+
+def _grid_normal(t):
+    """``_normal`` over the whole 1-degree knot grid (``_knot_grid``): the same for every fit
+    on one view grid, so kept (read-only) by the views; most of a fit's time was making it."""
+    key = (len(t), np.asarray(t, float).tobytes())
+    kept = _GRID.get(key)  # one lookup: another thread (the region's) may clear the dict meanwhile
+    if kept is None:
+        basis, gram = _normal(t, *_knot_grid(1.0))
+        basis.flags.writeable = gram.flags.writeable = False
+        if len(_GRID) >= GRID_KEPT:
+            _GRID.clear()
+        kept = _GRID[key] = (basis, gram)
+    return kept
+
+
 def _joint_cost(theta0, theta1, series, weights):
-    """Weighted residual sum of squares after the inner linear solve; batched over knots.
+    """Weighted residual sum of squares after the inner linear solve; batched over knots
+    (``theta0`` None: the whole 1-degree grid, ``_knot_grid(1.0)``, in its order).
 
     Materials sharing one view grid (the usual case) share the basis and its Gram matrix,
     so they are solved together: one 3x3 solve per knot pair for all of them."""
@@ -80,11 +109,7 @@ def _joint_cost(theta0, theta1, series, weights):
     for t, ys, ws in groups.values():
         Y = np.stack(ys, axis=1)  # (n, M)
         w = np.asarray(ws)  # (M,)
-        basis = energy_basis(t, theta0, theta1)  # (..., n, 3)
-        # Normal equations, batched 3x3; the tiny ridge only matters when no sample lies
-        # past theta0 (then alpha1 and m1 are unconstrained and any value fits).
-        gram = np.einsum("...ni,...nj->...ij", basis, basis)
-        gram = gram + 1e-12 * np.trace(gram, axis1=-2, axis2=-1)[..., None, None] * np.eye(3)
+        basis, gram = _grid_normal(t) if theta0 is None else _normal(t, theta0, theta1)
         bty = np.einsum("...ni,nm->...im", basis, Y)  # (..., 3, M)
         coef = np.linalg.solve(gram, bty)  # (..., 3, M)
         # |y - B c|^2 = y.y - 2 c.(B^T y) + c.(G c)
@@ -123,7 +148,7 @@ def fit_energy_joint(series, fit_range=DEFAULT_RANGE):
     signal = sum(w * float(y @ y) for (_, y), w in zip(prepared, weights))
     # Above the solver's rounding (~1e-12 of the signal), far below any real difference in fit.
     penalty = 1e-9 * signal * ((a0 - KNOT_START[0]) ** 2 + (a1 - KNOT_START[1]) ** 2)
-    costs = _joint_cost(a0, a1, prepared, weights) + penalty
+    costs = _joint_cost(None, None, prepared, weights) + penalty
     i = int(np.argmin(costs))
     best = (a0[i], a1[i])
     best = _refine_knots(best, prepared, weights)
