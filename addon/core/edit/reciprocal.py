@@ -33,6 +33,7 @@ from ..file.merl import RES_PD, RES_TD, RES_TH, MerlTable, cell_centres
 from ..geometry import directions_from_half_diff
 from ..profiles.compute import specular_part
 from ..profiles.integrate import SliceOperator
+from ..threads import parallel_map
 
 # Operator columns used by the solve: 1, x, phi, x^2, phi^2 (exponents(4) order: 0, 1, 2, 3, 5).
 _COLS = (0, 1, 2, 3, 5)
@@ -190,7 +191,7 @@ class Transform:
                 np.multiply(o, (self.L[a:b] * inv_var[a:b, None, None])[..., None], out=out[a:b, ..., 2 * C :])
 
         half = RES_TD // 2
-        _parallel_map(ring_block, [(0, half), (half, RES_TD)])
+        parallel_map(ring_block, [(0, half), (half, RES_TD)])
         return out
 
 
@@ -243,7 +244,7 @@ class RingSums:
         v = np.asarray(values, dtype=np.float32 if single else np.float64)
         # Each product in two halves of its rows: ten even tasks keep both threads busy (five
         # whole products left one thread idle for a fifth of the time).
-        parts = _parallel_map(lambda m: m @ v, self._halves(np.float32 if single else np.float64))
+        parts = parallel_map(lambda m: m @ v, self._halves(np.float32 if single else np.float64))
         out = np.stack([np.concatenate(parts[2 * j : 2 * j + 2]) for j in range(len(self.mats))], axis=1)
         return self._per_view(out.astype(np.float64, copy=False))
 
@@ -271,28 +272,6 @@ class RingSums:
         """(views, 90 rings[, k]): the zeroth monomial's sums alone."""
         v = np.asarray(values, dtype=np.float64)
         return self._per_view(self.mats[0] @ v)
-
-
-_POOL: dict = {}
-
-
-def _parallel_map(fn, items):
-    """``map`` over a small thread pool: scipy's sparse products release the GIL, so the five
-    monomials' products run on both cores (and leave Blender's main thread free meanwhile).
-    The pool is per process: a process forked after it was made (Blender's job children) has
-    none of its threads, so it makes its own."""
-    import os
-
-    workers = min(2, os.cpu_count() or 1)
-    if workers < 2 or len(items) < 2:
-        return [fn(x) for x in items]
-    pid = os.getpid()
-    if _POOL.get("pid") != pid:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL.clear()
-        _POOL.update(pid=pid, pool=ThreadPoolExecutor(workers, thread_name_prefix="brdf_moments-sums"))
-    return list(_POOL["pool"].map(fn, items))
 
 
 def _stats(S):
