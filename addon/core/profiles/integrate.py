@@ -672,17 +672,10 @@ def directional_albedo(table, views=None, stride: int = 1) -> np.ndarray:
     stride = check("stride", stride, "stride")
     views = default_views() if views is None else np.asarray(views, float)
     op = get_operator(views)
-    from ..threads import parallel_map
-
     full = np.where(table.valid, table.rho, 0.0).T
     ks = sorted(set(range(0, len(views), stride)) | {len(views) - 1})
     out = np.empty((len(ks), 3))
-
-    def run(rows):
-        for i in rows:
-            cells, w = op.albedo_view(ks[i])
-            out[i] = full[cells].T @ np.asarray(w, dtype=float)
-
-    # Each view alone, so two runs on the engine's pool give the same numbers as one.
-    parallel_map(run, [range(0, len(ks) // 2), range(len(ks) // 2, len(ks))])
+    for i, k in enumerate(ks):
+        cells, w = op.albedo_view(k)
+        out[i] = full[cells].T @ np.asarray(w, dtype=float)
     return out
