@@ -820,6 +820,7 @@ def roughness_region(table, prof, fit, src=None, stop=None):
     import os
     from concurrent.futures import Future, ThreadPoolExecutor
 
+    from .. import threads
     from .scale import material_curve
     from .scale import measure as measure_table
     from .scale import own as own_of_source
@@ -832,7 +833,11 @@ def roughness_region(table, prof, fit, src=None, stop=None):
     # pool is the region's own: the tilt's sums use reciprocal's, and a task waiting on its
     # own pool could wait for ever.
     workers = min(REGION_WORKERS, os.cpu_count() or 1)
-    pool = ThreadPoolExecutor(workers, thread_name_prefix="brdf_moments-region") if workers > 1 else None
+    pool = (
+        ThreadPoolExecutor(workers, thread_name_prefix="brdf_moments-region", initializer=threads.keep_in_order)
+        if workers > 1
+        else None
+    )
     own: Future = Future()
     given_up = []  # set when the region is not wanted after all: the tilt stops at its next step
     halt = lambda: bool(given_up) or (stop is not None and stop())  # noqa: E731
@@ -853,7 +858,8 @@ def roughness_region(table, prof, fit, src=None, stop=None):
     # Two threads of our own already fill this machine's cores: OpenBLAS's pool beside them
     # only waits for a core, and doubles the CPU it takes (colodur_kalahari_2a: 4.1 s and
     # 8.0 s of CPU with it, 3.7 s and 6.6 s without; the numbers the same to the bit).
-    with one_thread() if pool else contextlib.nullcontext():
+    # For the same reason the engine's own pool (``threads``) stays out of the region's threads.
+    with one_thread() if pool else contextlib.nullcontext(), threads.in_order() if pool else contextlib.nullcontext():
         try:
             tilt = pool.submit(own_then_tilt) if pool else None
             read_here = src is None
