@@ -230,7 +230,7 @@ def test_the_circle_finder_finds_circles():
 # -> table -> preview; the table step's node approximations are ``material``), in that order,
 # and beside them the modules every step may read, which import no step. Each package names the
 # packages it may import: only ones before it in the flow.
-ENGINE_GROUND = ("limits", "geometry", "microsurface")
+ENGINE_GROUND = ("limits", "geometry", "microsurface", "threads")
 ENGINE = {
     "file": (),  # the MERL table, networks, the guard and opener, atomic writes, sealed caches
     "profiles": ("file",),  # integrates a table's slices

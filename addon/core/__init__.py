@@ -9,11 +9,12 @@ README's order, file -> profiles -> fits -> edit -> table -> preview:
 - ``material``: the node approximations of a table (the artist's material outside OSL).
 - ``preview``: the preview's numbers without Blender (maps, samplers, bake, reference).
 
-Beside them, three modules every step may read, which import none of the steps: ``limits``
+Beside them, four modules every step may read, which import none of the steps: ``limits``
 (every size, count and range: the one table the engine, the command line and the panel check
 against), ``geometry`` (directions, the Rusinkiewicz angles, the paper's view-centred map) and
 ``microsurface`` (the GGX and Beckmann distributions, Smith's masking, the projected area:
-written once for the samples, the edit's microfacet reading and the artist's material). A
+written once for the samples, the edit's microfacet reading and the artist's material) and
+``threads`` (the engine's one small thread pool, for numpy work that lets go of the GIL). A
 package imports these and the packages before it in the flow that it needs, never one after
 it: tests/test_layout.py holds the table.
 
