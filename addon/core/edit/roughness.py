@@ -41,7 +41,7 @@ import numpy as np
 
 from ..file.merl import RES_PD, RES_TD, RES_TH, MerlTable
 from ..limits import ROUGHNESS_RANGE
-from ..profiles.integrate import default_views, directional_albedo, get_operator
+from ..profiles.integrate import default_views, directional_albedo, get_operator, strided_views
 from .floor import joint_floor
 from .microfacet import (
     HALF_PI,
@@ -178,7 +178,7 @@ def _energy_bound(src: Source, spec) -> int:
     valid = src.table.valid
     flat = spec.reshape(3, -1)
     table = MerlTable(flat, valid, None)
-    checked = sorted(set(range(0, len(views), ENERGY_STRIDE)) | {len(views) - 1})
+    checked = strided_views(len(views), ENERGY_STRIDE)
     if np.all(directional_albedo(table, views, ENERGY_STRIDE) <= ENERGY_MARGIN * limit[checked]):
         return 0  # far below the bound on every third view: no view between them reaches it
     a = directional_albedo(table, views)
@@ -291,7 +291,7 @@ def _cell_nodes(views):
     key = np.asarray(views, float).tobytes()
     if _NODES.get("key") != key:
         v = np.asarray(views, float)
-        keep = sorted(set(range(0, len(v), 2)) | {len(v) - 1})
+        keep = strided_views(len(v), 2)
         nodes = v[keep]
         nn = len(nodes)
 

@@ -662,6 +662,12 @@ def _cell_lookup(theta_o):
     return cells
 
 
+def strided_views(n: int, stride: int) -> list:
+    """The indices of every ``stride``-th of ``n`` views and the last one (the grazing end is
+    where albedos and bounds are largest, so a subset always keeps it)."""
+    return sorted(set(range(0, n, stride)) | {n - 1})
+
+
 def directional_albedo(table, views=None, stride: int = 1) -> np.ndarray:
     """(views, 3): integral of rho cos(theta_i) over the hemisphere for each view (default:
     the profiles' default views); with ``stride``, every stride-th view and the last one only.
@@ -673,7 +679,7 @@ def directional_albedo(table, views=None, stride: int = 1) -> np.ndarray:
     views = default_views() if views is None else np.asarray(views, float)
     op = get_operator(views)
     full = np.where(table.valid, table.rho, 0.0).T
-    ks = sorted(set(range(0, len(views), stride)) | {len(views) - 1})
+    ks = strided_views(len(views), stride)
     out = np.empty((len(ks), 3))
     for i, k in enumerate(ks):
         cells, w = op.albedo_view(k)
