@@ -99,10 +99,13 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
         if state.source_stamp and source_stamp(state.source_path) != state.source_stamp:
             raise ValueError(f"{source}: the file changed since it was analysed; analyse it again before Apply")
         stored_prof, stored_fit, region = state.profiles(), state.fit(), state.region()
+        # the work writes the texture file; finish links it from the same place
+        place = self._place = artist.texture_place(state.texture_storage)
 
         def work(report_progress):
             from ..addon.core.file import cachefs
             from ..addon.core.limits import EDITS_CACHE_MAX_BYTES, EDITS_CACHE_MAX_ENTRIES
+            from ..addon.core.material.lobes import LobeFit
 
             table = read_table(spec)
             prof, fit = stored_prof, stored_fit
@@ -137,7 +140,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
             # the least error any mix of Blender's closures reaches on the edited table is the
             # node_bound job's (6 s and more): the panel's button runs it after Apply. (Started
             # from Apply's finish in 3.4's window it failed within a second, cause not found yet.)
-            principled = texture = bound = None
+            principled = texture = bound = None  # texture: the written file's path
             if shader in ("lobes", "approx"):
                 from ..addon.core.material.lobes import fit_lobes
 
@@ -154,7 +157,9 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
 
                 kd = res.profiles.kd
                 values = np.where(res.table.valid, res.table.rho, np.asarray(kd, float)[:, None]).T
-                texture = table_texture_pixels(values, kd)
+                texture = artist.write_texture(place, "brdfm-table", table_texture_pixels(values, kd))
+            if isinstance(principled, LobeFit):
+                texture = artist.write_texture(place, "brdfm-lookup", artist.lookup_pixels(principled))
             report_progress(10, 10)
             res.table = None  # written to `out`; not sent back from the worker process (100 MB)
             return out, res, prof, fit, principled, texture, promise, bound
@@ -200,7 +205,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
 
         if isinstance(principled, LobeFit):
             state.lobes_data = json.dumps(principled.as_dict())
-            artist.apply_lobes(mat, principled, state.texture_storage)
+            artist.apply_lobes(mat, principled, state.texture_storage, path=texture, place=self._place)
             state.artist_shader_used = "lobes"
             note = (
                 f"; '{mat.name}' now renders {principled.n_lobes} lobes ({principled.describe()}) and a diffuse "
@@ -215,7 +220,7 @@ class BRDFMOMENTS_OT_apply_edit(BackgroundJob, bpy.types.Operator):
                 f"{said_bound})"
             )
         elif texture is not None:
-            artist.apply_osl(mat, texture, res, context.scene)
+            artist.apply_osl(mat, None, res, context.scene, path=texture, place=self._place)
             state.artist_shader_used = "osl"
             note = f"; '{mat.name}' now renders the edited table (OSL)"
         level = {"WARNING"} if res.warnings else {"INFO"}

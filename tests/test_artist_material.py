@@ -199,8 +199,22 @@ def test_osl_edit_keeps_its_table_texture_packed_in_the_blend(artist):
         n for n in mat.node_tree.nodes["BRDF Moments edit"].node_tree.nodes if n.bl_idname == "ShaderNodeScript"
     )
     new = script.inputs["Table"].default_value
-    assert os.path.isfile(new)
+    assert os.path.isfile(new) and os.path.isfile(new + ".seal")  # the bounded cache's own
     with open(new, "rb") as fh:
+        assert fh.read() == data
+    # a damaged texture in the cache (same size) is not trusted on the next open: the packed
+    # bytes go to a new file (OIIO caches textures by path)
+    with open(new, "r+b") as fh:
+        fh.seek(len(data) - 4)
+        fh.write(b"\xff\xff\xff\xff")
+    bpy.ops.wm.open_mainfile(filepath=path)
+    mat = bpy.data.materials["Artist"]
+    script = next(
+        n for n in mat.node_tree.nodes["BRDF Moments edit"].node_tree.nodes if n.bl_idname == "ShaderNodeScript"
+    )
+    again = script.inputs["Table"].default_value
+    assert again != new
+    with open(again, "rb") as fh:
         assert fh.read() == data
 
 

@@ -413,11 +413,17 @@ def apply_principled(mat, fit, bound=None):
     return group
 
 
-def apply_lobes(mat, fit, storage="PACK"):
-    """The lobe mixture in ``mat``: its lookup image packed into the .blend (or next to it)."""
-    pixels = np.ascontiguousarray(fit.lookup_pixels()[::-1])  # top row first, as image files are written
-    _texture_file(mat, pixels, storage, LOOKUP_IMAGE, "brdfm-lookup")
-    image = bpy.data.images[LOOKUP_IMAGE.format(mat.name)]
+def lookup_pixels(fit):
+    """The lobes' lookup image top row first, as image files are written."""
+    return np.ascontiguousarray(fit.lookup_pixels()[::-1])
+
+
+def apply_lobes(mat, fit, storage="PACK", path=None, place=None):
+    """The lobe mixture in ``mat``: its lookup image packed into the .blend (or next to it).
+    ``path``: the lookup's file, written already by Apply's work at ``place``."""
+    place = place or texture_place(storage)
+    path = path or write_texture(place, "brdfm-lookup", lookup_pixels(fit))
+    image = texture_image(mat, path, LOOKUP_IMAGE, place[1])
     label = lobes_label(fit)
     group = apply_group(mat, label)
     fill_lobes(group, fit, image)
@@ -458,29 +464,52 @@ def _texture_cache():
     return os.path.join(cache_dir(), "artist")
 
 
-def table_texture_file(mat, pixels, storage="PACK"):
-    """The OSL table texture of ``mat`` as a file (OSL reads files only), and an image datablock
-    that keeps it with the .blend: packed into it (default), or a file next to it."""
-    return _texture_file(mat, pixels, storage, TEXTURE_IMAGE, "brdfm-table")
+def texture_place(storage="PACK"):
+    """Main thread: where Apply writes a material's texture, read from the panel and the .blend
+    before its work starts: (folder, beside, the cache's files still in use). Next to a saved
+    .blend when the artist chose that (their folder: written once, never pruned); else the
+    bounded cache, which keeps every file an OSL edit of this .blend still reads."""
+    import os
+
+    if storage == "BESIDE" and bpy.data.filepath:
+        return os.path.join(os.path.dirname(bpy.path.abspath(bpy.data.filepath)), TEXTURE_FOLDER), True, ()
+    in_use = []
+    for mat in bpy.data.materials:
+        node = mat.node_tree.nodes.get(GROUP_NODE) if mat.node_tree is not None else None
+        group = node.node_tree if node is not None else None
+        for n in group.nodes if group is not None else ():
+            if n.bl_idname == "ShaderNodeScript" and "Table" in n.inputs:
+                in_use.append(bpy.path.abspath(n.inputs["Table"].default_value))
+    return _texture_cache(), False, tuple(in_use)
 
 
-def _texture_file(mat, pixels, storage, image_name, prefix):
+def write_texture(place, prefix, pixels) -> str:
+    """The texture file of ``pixels`` (top row first) at ``place`` (``texture_place``). No bpy:
+    Apply's work calls it, so Blender's main thread never waits on a file write. Named by its
+    content; in the cache sealed, verified when found, and bounded (``limits``)."""
     import hashlib
     import os
 
-    from .preview.environment import write_environment
+    from ..core.file import cachefs
+    from ..core.file.exr import write_exr
+    from ..core.limits import ARTIST_TEXTURE_MAX_BYTES, ARTIST_TEXTURE_MAX_ENTRIES
 
-    name = f"{prefix}-{hashlib.sha256(pixels.tobytes()).hexdigest()[:16]}.exr"
-    beside = storage == "BESIDE" and bool(bpy.data.filepath)
-    folder = (
-        os.path.join(os.path.dirname(bpy.path.abspath(bpy.data.filepath)), TEXTURE_FOLDER)
-        if beside
-        else _texture_cache()
-    )
-    os.makedirs(folder, exist_ok=True)
-    path = os.path.join(folder, name)
+    folder, beside, in_use = place
+    stem = f"{prefix}-{hashlib.sha256(np.ascontiguousarray(pixels).tobytes()).hexdigest()[:16]}"
+    if not beside:
+        bounds = (ARTIST_TEXTURE_MAX_ENTRIES, ARTIST_TEXTURE_MAX_BYTES)
+        return cachefs.sealed_file(folder, stem, ".exr", lambda p: write_exr(pixels, p), bounds, in_use, "brdfm-")
+    path = os.path.join(folder, stem + ".exr")
     if not os.path.isfile(path):
-        write_environment(pixels, path)
+        write_exr(pixels, path)
+    return path
+
+
+def texture_image(mat, path, image_name, beside):
+    """Main thread: the image datablock that keeps ``mat``'s texture file with the .blend:
+    packed into it, or (``beside``) the file next to it by a relative path."""
+    import os
+
     img_name = image_name.format(mat.name)
     old = bpy.data.images.get(img_name)
     if old is not None:
@@ -489,17 +518,28 @@ def _texture_file(mat, pixels, storage, image_name, prefix):
     img.name = img_name
     img.colorspace_settings.name = "Non-Color"
     img.use_fake_user = True
+    name = os.path.basename(path)
     if beside:
         img.filepath = f"//{TEXTURE_FOLDER}/{name}"
     else:
         img.pack()
     img["brdfm_texture"] = name
+    return img
+
+
+def table_texture_file(mat, pixels, storage="PACK", path=None, place=None):
+    """The OSL table texture of ``mat`` as a file (OSL reads files only), and an image datablock
+    that keeps it with the .blend (``texture_image``). ``path``: written already by Apply's
+    work, at ``place`` (``texture_place`` when its work started)."""
+    place = place or texture_place(storage)
+    path = path or write_texture(place, "brdfm-table", pixels)
+    texture_image(mat, path, TEXTURE_IMAGE, place[1])
     return path
 
 
-def apply_osl(mat, pixels, res, scene=None):
+def apply_osl(mat, pixels, res, scene=None, path=None, place=None):
     state = mat.brdf_moments
-    path = table_texture_file(mat, pixels, state.texture_storage)
+    path = table_texture_file(mat, pixels, state.texture_storage, path, place)
     group = apply_group(mat, "BRDF Moments edit (OSL, the edited table)")
     prof = res.profiles
     fill_osl(
@@ -514,9 +554,14 @@ def apply_osl(mat, pixels, res, scene=None):
 
 def relink_textures():
     """After a .blend is opened (maybe on another machine): point every OSL edit at its table
-    texture, written out of the packed image (or found next to the .blend) when missing."""
+    texture, written out of the packed image into the cache (sealed, bounded) or found next
+    to the .blend, when missing or damaged."""
     import os
 
+    from ..core.file import cachefs
+    from ..core.limits import ARTIST_TEXTURE_MAX_BYTES, ARTIST_TEXTURE_MAX_ENTRIES
+
+    cache = os.path.abspath(_texture_cache())
     for mat in bpy.data.materials:
         node = mat.node_tree.nodes.get(GROUP_NODE) if mat.node_tree is not None else None
         group = node.node_tree if node is not None else None
@@ -524,19 +569,22 @@ def relink_textures():
         img = bpy.data.images.get(TEXTURE_IMAGE.format(mat.name))
         if script is None or img is None or "Table" not in script.inputs:
             continue
-        if os.path.isfile(script.inputs["Table"].default_value):
+        current = os.path.abspath(bpy.path.abspath(script.inputs["Table"].default_value))
+        if os.path.isfile(current) and (os.path.dirname(current) != cache or cachefs.verified(current)):
             continue
         name = img.get("brdfm_texture") or os.path.basename(img.filepath)
         if img.packed_file is not None:
-            folder = _texture_cache()
-            os.makedirs(folder, exist_ok=True)
-            path = os.path.join(folder, name)
-            if not os.path.isfile(path):
+            data = img.packed_file.data
+
+            def write(path, data=data):
                 from ..core.file.atomic import atomic_path
 
-                with atomic_path(path, ".exr") as tmp:
-                    with open(tmp, "wb") as fh:
-                        fh.write(img.packed_file.data)
+                with atomic_path(path, ".exr") as tmp, open(tmp, "wb") as fh:
+                    fh.write(data)
+
+            bounds = (ARTIST_TEXTURE_MAX_ENTRIES, ARTIST_TEXTURE_MAX_BYTES)
+            stem = os.path.splitext(name)[0]
+            path = cachefs.sealed_file(cache, stem, ".exr", write, bounds, texture_place()[2], "brdfm-")
         else:
             path = bpy.path.abspath(img.filepath)
         if os.path.isfile(path):

@@ -46,6 +46,8 @@ BAKE_CACHE_MAX_ENTRIES = 256  # baked spheres (~1 MB each at 256 px)
 BAKE_CACHE_MAX_BYTES = 512 << 20
 TABLE_TEXTURE_MAX_ENTRIES = 16  # OSL table textures (~17 MB each)
 TABLE_TEXTURE_MAX_BYTES = 400 << 20
+ARTIST_TEXTURE_MAX_ENTRIES = 32  # textures of the artists' materials: OSL tables (~17 MB), lobe lookups
+ARTIST_TEXTURE_MAX_BYTES = 600 << 20
 EDITS_CACHE_MAX_ENTRIES = 16  # re-synthesized tables from Apply (35 MB each)
 EDITS_CACHE_MAX_BYTES = 600 << 20
 

@@ -104,21 +104,8 @@ def load_environment(path) -> Environment:
 
 
 def write_environment(pixels, path):
-    """Write an (H, W, 3) top-row-first array as a float EXR through bpy (tests, constant worlds)."""
-    from ...core.file.atomic import atomic_path
+    """Write an (H, W, 3) top-row-first array as a float EXR (tests, constant worlds); no bpy,
+    so a job's work may call it too."""
+    from ...core.file.exr import write_exr
 
-    a = np.asarray(pixels, np.float32)
-    h, w = a.shape[:2]
-    img = bpy.data.images.new("brdfm-env-write", w, h, float_buffer=True, alpha=True)
-    try:
-        img.colorspace_settings.name = "Non-Color"
-        rgba = np.ones((h, w, 4), np.float32)
-        rgba[..., :3] = a[::-1, :, :3]
-        img.pixels.foreach_set(rgba.ravel())
-        with atomic_path(path, ".exr") as tmp:
-            img.filepath_raw = tmp
-            img.file_format = "OPEN_EXR"
-            img.save()
-    finally:
-        bpy.data.images.remove(img)
-    return os.path.abspath(path)
+    return os.path.abspath(write_exr(pixels, path))

@@ -162,20 +162,15 @@ def write_table_texture(brdf, folder=None) -> str:
     """The table texture of a TableBRDF, written once per content and sealed (``cachefs``): a
     texture whose bytes no longer match its seal is replaced by a freshly written one under a
     new name (OIIO caches textures by path, so a changed file must get a new name too)."""
-    import glob
-    import secrets
-
     from ...core.file import cachefs
+    from ...core.file.exr import write_exr
     from ...core.limits import TABLE_TEXTURE_MAX_BYTES, TABLE_TEXTURE_MAX_ENTRIES
-    from .environment import write_environment
 
-    folder = cachefs.cache_folder(folder or cache_dir())
-    stem = f"table-v2-{brdf.content_key()[:24]}"
-    for path in sorted(glob.glob(os.path.join(glob.escape(folder), stem + "-*.exr"))):
-        if cachefs.verified(path):
-            return path
-    path = os.path.join(folder, f"{stem}-{secrets.token_hex(4)}.exr")
-    out = write_environment(table_texture_pixels(brdf.values, brdf.kd), path)
-    cachefs.write_seal(out)
-    cachefs.prune(folder, TABLE_TEXTURE_MAX_ENTRIES, TABLE_TEXTURE_MAX_BYTES, keep=(out,), prefix="table-")
-    return out
+    return cachefs.sealed_file(
+        folder or cache_dir(),
+        f"table-v2-{brdf.content_key()[:24]}",
+        ".exr",
+        lambda path: write_exr(table_texture_pixels(brdf.values, brdf.kd), path),
+        (TABLE_TEXTURE_MAX_ENTRIES, TABLE_TEXTURE_MAX_BYTES),
+        prefix="table-",
+    )

@@ -7,6 +7,7 @@ anything (SPEC §2, §7). Modules in the order a run uses them:
   regular files only, EXR/HDR headers, bounded JSON).
 - ``atomic``: atomic writes behind that guard, and the journal of temporaries.
 - ``cachefs``: cache entries sealed by size and CRC-32, and bounded cache folders.
+- ``exr``: float OpenEXR images written without Blender (textures made in a job's work).
 - ``merl``: the MERL table: read, validate, write, look up, tabulate an analytic BRDF.
 - ``nbrdf``: Neural-BRDF networks decoded into MERL tables.
 """

@@ -130,6 +130,27 @@ def prune(folder, max_entries, max_bytes, keep=(), prefix="") -> list:
     return removed
 
 
+def sealed_file(folder, stem, suffix, write, bounds, keep=(), prefix="") -> str:
+    """The verified entry ``<stem>-<token><suffix>`` of cache ``folder``, else a new one:
+    ``write(path)`` under a fresh token, then sealed. A damaged entry is never written over:
+    readers that cache files by path (OIIO's texture system) would keep its old bytes. Then
+    the folder is pruned to ``bounds`` (entries, bytes) among entries named ``prefix*``, keeping
+    the result and ``keep``."""
+    import glob
+    import secrets
+
+    folder = cache_folder(folder)
+    for path in sorted(glob.glob(os.path.join(glob.escape(folder), f"{glob.escape(stem)}-*{suffix}"))):
+        if verified(path):
+            break
+    else:
+        path = os.path.join(folder, f"{stem}-{secrets.token_hex(4)}{suffix}")
+        write(path)
+        write_seal(path)
+    prune(folder, *bounds, keep=(path, *keep), prefix=prefix)
+    return path
+
+
 def check_sealed(path, what="cached file") -> None:
     """Refuse a sealed file whose bytes no longer match its seal (an unsealed one passes:
     its own reader validates it)."""
