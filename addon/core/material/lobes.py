@@ -19,7 +19,10 @@ distribution, which the nodes do not use).
 The lookup holds W at N_VIEWS view angles theta_j = (j + 1/2) 90° / N_VIEWS (texel centres of
 an image indexed by u = theta_o / 90°, linear interpolation, clamped at the ends), so between
 two texels the colours are interpolated linearly, as the texture does; the error below is
-measured at views between the texels, where that interpolation shows.
+measured at views between the texels, where that interpolation shows. The lobes are picked
+on the views of a lookup half as fine (PICK_VIEWS); the finer lookup costs a fifth more fit
+time and takes up to 3.6 points off where the colours change fast with the view (BENCHMARKS.md,
+"The artist's material").
 
 The fit: for every texel view, the weights are non-negative least squares of the table against
 the lobes (cosine-weighted, through the half vector on the table's own theta_h cells, as
@@ -55,7 +58,8 @@ import numpy as np
 from ..microsurface import DISTRIBUTIONS, masking, smith_lambda, stretched_ndf
 from .principled import pixel_share, reflect_about, view_quadrature
 
-N_VIEWS = 18  # texels of the lookup over theta_o in [0, 90°]
+N_VIEWS = 36  # texels of the lookup over theta_o in [0, 90°]; ERROR_VIEWS_DEG lie half-way between two
+PICK_VIEWS = 18  # the views (texel centres of an 18-texel lookup) where the lobes are picked
 N_LOBES = 5  # at most; the fourth and fifth only where they lower the fit's cost by MIN_GAIN
 MIN_LOBES = 3
 MIN_GAIN = 0.03
@@ -265,7 +269,7 @@ def microfacet_lobe(distribution, alpha, wi, wo, shadowing="correlated", aspect=
         raise ValueError(f"unknown distribution {distribution!r}")
     if shadowing not in SHADOWING:
         raise ValueError(f"unknown shadowing {shadowing!r}")
-    alpha = max(float(alpha), 1e-7)
+    alpha = np.maximum(np.asarray(alpha, float), 1e-7)  # a column of values: one lobe per row
     h = wi + wo
     h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
     ci = np.clip(wi[..., 2], 1e-9, 1.0)
@@ -414,23 +418,38 @@ def _table_at_views(table, views_deg):
 
 def _features(lobes, wi, wo, shadowing, aspects=(1.0,)):
     """Diffuse, then every (kind, roughness) lobe at every aspect, aspects varying fastest (a
-    Fresnel or Velvet lobe, always round, repeated)."""
+    Fresnel or Velvet lobe, always round, repeated). ``aspects`` (K,) arrays in a list: each
+    lobe at its own aspects."""
     wo_b = np.broadcast_to(wo, wi.shape)
-    q = np.asarray(aspects, float)[:, None]  # all the aspects of one lobe in one call
+    own = isinstance(aspects, list)
+    q = None if own else np.asarray(aspects, float)[:, None]  # all the aspects of one lobe in one call
     rows = [np.full((1, len(wi)), 1.0 / np.pi)]
     fresnel = fresnel_factor(wi, wo_b, shadowing) if any(kind == FRESNEL for kind, _ in lobes) else None
     round_ggx = {}  # a Fresnel lobe is the round GGX lobe of its roughness times the factor
-    for kind, r in lobes:
+    batch = {}  # at one aspect, every roughness of a distribution in one call (the same geometry)
+    if not own and len(q) == 1:
+        for kind, name in ((GGX, "ggx"), (BECKMANN, "beckmann")):
+            rs = sorted({r for kd, r in lobes if kd == kind or (kind == GGX and kd == FRESNEL)})
+            if rs:
+                shapes = microfacet_lobe(name, np.square(rs)[:, None], wi, wo_b, shadowing, q[0, 0])
+                batch.update({(kind, r): shape[None] for r, shape in zip(rs, shapes)})
+        if q[0, 0] == 1.0:
+            round_ggx.update({r: shape[0] for (kind, r), shape in batch.items() if kind == GGX})
+    for k, (kind, r) in enumerate(lobes):
+        if own:
+            q = np.atleast_1d(np.asarray(aspects[k], float))[:, None]
         if kind == FRESNEL:
             if r not in round_ggx:
                 round_ggx[r] = lobe_shape(GGX, r, wi, wo_b, shadowing)
             shape = round_ggx[r] * fresnel
         elif kind in (VELVET, ROUGH_DIFFUSE):
             shape = lobe_shape(kind, r, wi, wo_b, shadowing)
+        elif (kind, r) in batch:
+            shape = batch[(kind, r)]
         else:
             shape = lobe_shape(kind, r, wi, wo_b, shadowing, q)
-            if kind == GGX and len(q) > 0 and 1.0 in aspects:
-                round_ggx[r] = shape[list(aspects).index(1.0)] if shape.ndim == 2 else shape
+            if kind == GGX and np.any(q == 1.0):
+                round_ggx[r] = shape[int(np.argmax(q[:, 0] == 1.0))] if shape.ndim == 2 else shape
         rows.append(np.broadcast_to(shape, (len(q), len(wi))))
     return np.concatenate(rows)
 
@@ -723,8 +742,11 @@ def fit_lobes(
     n_lobes, n_views = check("lobes", n_lobes, "n_lobes"), check("lookup_texels", n_views, "n_views")
     if diffuse_quantile is not None:
         diffuse_quantile = check("share", diffuse_quantile, "diffuse_quantile")
-    samples = list(_table_at_views(table, texel_views_deg(n_views)))
-    return _fit_samples(samples, n_lobes, shadowing, n_views, dictionary, aspects, kinds, table, None, diffuse_quantile)
+    picking = list(_table_at_views(table, texel_views_deg(min(PICK_VIEWS, n_views))))
+    samples = picking if n_views <= PICK_VIEWS else list(_table_at_views(table, texel_views_deg(n_views)))
+    return _fit_samples(
+        samples, n_lobes, shadowing, n_views, dictionary, aspects, kinds, table, None, diffuse_quantile, picking
+    )
 
 
 def _fit_samples(
@@ -738,7 +760,11 @@ def _fit_samples(
     table=None,
     error_samples=None,
     diffuse_quantile=DIFFUSE_QUANTILE,
+    picking=None,
 ):
+    """The fit on the lookup's views ``samples`` (one per texel); the lobes are picked on the
+    views ``picking`` (default: the same), the Glossy lobes' aspects, the Velvet and rough
+    Diffuse and every colour on the lookup's."""
     if shadowing not in SHADOWING:
         raise ValueError(f"unknown shadowing {shadowing!r}")
     if any(k not in KINDS for k in kinds) or not any(k in MICROFACET_KINDS for k in kinds):
@@ -747,7 +773,8 @@ def _fit_samples(
     if 1.0 not in aspects or any(not ASPECT_RANGE[0] <= q <= ASPECT_RANGE[1] for q in aspects):
         raise ValueError(f"aspects must hold 1 and lie in {ASPECT_RANGE}")
     lobes_all = [(kind, r) for kind in kinds if kind in MICROFACET_KINDS for r in dictionary]
-    vs = [_View(*at, shadowing, lobes_all, diffuse_quantile=diffuse_quantile) for at in samples]
+    picking = samples if picking is None else picking
+    vs = [_View(*at, shadowing, lobes_all, diffuse_quantile=diffuse_quantile) for at in picking]
     fres_cols = np.array([False] + [kind in GREY_KINDS for kind, _ in lobes_all])
     # The lobes among round ones, then each Glossy lobe's aspect per view (the first texel stays
     # round: at normal view the plane of incidence, the lobe's tangent, is undefined).
@@ -766,26 +793,34 @@ def _fit_samples(
     stretch = len(aspects) > 1 and not all(fresnel)
     extras = [(VELVET, s) for s in VELVET_SIGMA] if VELVET in kinds else []
     extras += [(ROUGH_DIFFUSE, 1.0)] if ROUGH_DIFFUSE in kinds else []
+    # the chosen lobes at every aspect (or round), the extras' candidates after them
+    used = aspects if stretch else (1.0,)
+    nq, q1 = len(used), used.index(1.0)
+    vs = [v.with_lobes(chosen + extras, used) for v in vs]
     qi = np.full((len(chosen), len(vs)), round_q)  # each lobe's aspect per view, into ``aspects``
-    if stretch or extras:
-        # the chosen lobes at every aspect (or round), and the extras' candidates after them
-        used = aspects if stretch else (1.0,)
-        nq, q1 = len(used), used.index(1.0)
-        vs = [v.with_lobes(chosen + extras, used) for v in vs]
-        if stretch:
-            round_lobes = tuple(k for k, f in enumerate(fresnel) if f)
-            qi = _choose_aspects(vs, len(chosen), nq, [v.share for v in vs], q1, round_lobes=round_lobes)
-        cols = 1 + np.arange(len(chosen))[:, None] * nq + (qi if stretch else np.full_like(qi, q1))  # (K, views)
+    if stretch:
+        round_lobes = tuple(k for k, f in enumerate(fresnel) if f)
+        qi = _choose_aspects(vs, len(chosen), nq, [v.share for v in vs], q1, round_lobes=round_lobes)
+    cols = 1 + np.arange(len(chosen))[:, None] * nq + (qi if stretch else np.full_like(qi, q1))  # (K, views)
+    if extras:
         grey_cols = _grey_columns(vs, [kind in GREY_KINDS for kind, _ in chosen + extras], nq)
-        picked, cols = _extras_pick(vs, cols, nq, q1, extras, grey_cols) if extras else ([], cols)
+        picked, cols = _extras_pick(vs, cols, nq, q1, extras, grey_cols)
         if picked:
             chosen += [extras[k] for k in picked]
             qi = np.vstack([qi, np.full((len(picked), len(vs)), round_q)])
             rest = _prune(vs, cols, len(picked), grey_cols)
             chosen, qi, cols = [chosen[i] for i in rest], qi[rest], cols[rest]
-        fresnel = [kind in GREY_KINDS for kind, _ in chosen]
-    else:  # round lobes: their columns in the dictionary's normal equations
-        cols = np.repeat(1 + np.array(pick)[:, None], len(vs), axis=1)
+    fresnel = [kind in GREY_KINDS for kind, _ in chosen]
+    if samples is not picking:
+        # the lookup's texels: each takes the aspects of the picking view nearest it, and its
+        # colours are solved at its own view, on those lobes at those aspects alone
+        near = np.abs(np.subtract.outer(texel_views_deg(n_views), [v.deg for v in vs])).argmin(axis=1)
+        qi = qi[:, near]
+        vs = [
+            _View(*at, shadowing, chosen, list(np.asarray(used)[qi[:, j]]), diffuse_quantile)
+            for j, at in enumerate(samples)
+        ]
+        cols = np.repeat(1 + np.arange(len(chosen))[:, None], len(vs), axis=1)
     W = np.zeros((1 + len(chosen), n_views, 3))
     for j, v in enumerate(vs):
         W[:, j, :] = v.solve([0] + [int(c) for c in cols[:, j]], [False] + fresnel)[0].T
