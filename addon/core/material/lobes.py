@@ -762,9 +762,10 @@ def _fit_samples(
     diffuse_quantile=DIFFUSE_QUANTILE,
     picking=None,
 ):
-    """The fit on the lookup's views ``samples`` (one per texel); the lobes are picked on the
-    views ``picking`` (default: the same), the Glossy lobes' aspects, the Velvet and rough
-    Diffuse and every colour on the lookup's."""
+    """The fit on the lookup's views ``samples`` (one per texel). The lobes, the Glossy lobes'
+    aspects and the Velvet and rough Diffuse are chosen on the views ``picking`` (default: the
+    same); each texel takes the aspects of the picking view nearest it, and its colours are
+    solved at its own view."""
     if shadowing not in SHADOWING:
         raise ValueError(f"unknown shadowing {shadowing!r}")
     if any(k not in KINDS for k in kinds) or not any(k in MICROFACET_KINDS for k in kinds):
