@@ -20,9 +20,9 @@ The lookup holds W at N_VIEWS view angles theta_j = (j + 1/2) 90° / N_VIEWS (te
 an image indexed by u = theta_o / 90°, linear interpolation, clamped at the ends), so between
 two texels the colours are interpolated linearly, as the texture does; the error below is
 measured at views between the texels, where that interpolation shows. The lobes are picked
-on the views of a lookup half as fine (PICK_VIEWS); the finer lookup costs a fifth more fit
-time and takes up to 3.6 points off where the colours change fast with the view (BENCHMARKS.md,
-"The artist's material").
+on the views of a lookup half as fine (PICK_VIEWS); the finer lookup costs about 5 % more fit
+time and takes up to 1.7 points off where the colours change fast with the view, averaged over
+view phases (3.6 at the error views alone; BENCHMARKS.md, "The artist's material").
 
 The fit: for every texel view, the weights are non-negative least squares of the table against
 the lobes (cosine-weighted, through the half vector on the table's own theta_h cells, as
