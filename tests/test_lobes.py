@@ -469,3 +469,21 @@ def test_a_finer_lookup_follows_a_colour_that_swings_with_the_view():
     drawn = np.abs(coarse.weights_at(views[inner])[1, :, 0] - swing(views[inner]))
     assert np.mean(near) < 0.8 * np.mean(drawn)
     assert L.measure(fine, table) == pytest.approx((fine.error, fine.albedo_error))
+
+
+def test_a_table_of_one_fresnel_lobe_gives_it_back_through_the_finer_lookup():
+    """Only Fresnel lobes (always round: no aspect is chosen, though aspects are offered): the
+    lookup's texels take them round too. The lobe of the table comes back, with its grey
+    weight, wherever the lobe holds light (from 30°: Schlick's factor with a black base is
+    under 1e-4 nearer the normal, where any weight fits the table)."""
+    r, c = L.DICTIONARY[8], 0.7
+
+    def brdf(wi, wo):
+        return np.repeat((c * L.lobe_shape(L.FRESNEL, r, wi, wo))[None], 3, axis=0)
+
+    fit = L.fit_lobes(tabulate(brdf), n_lobes=1, kinds=(L.FRESNEL,))
+    assert fit.kinds == (L.FRESNEL,) and fit.roughness == (r,)
+    assert fit.weights.shape == (2, L.N_VIEWS, 3) and not fit.anisotropic
+    views = np.array(L.texel_views_deg())
+    lit = (views >= 30) & (views <= 80)
+    np.testing.assert_allclose(fit.weights[1][lit], c, rtol=0.02)

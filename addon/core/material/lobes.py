@@ -818,7 +818,7 @@ def _fit_samples(
         near = np.abs(np.subtract.outer(texel_views_deg(n_views), [v.deg for v in vs])).argmin(axis=1)
         qi = qi[:, near]
         vs = [
-            _View(*at, shadowing, chosen, list(np.asarray(used)[qi[:, j]]), diffuse_quantile)
+            _View(*at, shadowing, chosen, list(np.asarray(aspects)[qi[:, j]]), diffuse_quantile)
             for j, at in enumerate(samples)
         ]
         cols = np.repeat(1 + np.arange(len(chosen))[:, None], len(vs), axis=1)
