@@ -473,14 +473,19 @@ def texture_place(storage="PACK"):
 
     if storage == "BESIDE" and bpy.data.filepath:
         return os.path.join(os.path.dirname(bpy.path.abspath(bpy.data.filepath)), TEXTURE_FOLDER), True, ()
-    in_use = []
+    in_use = tuple(bpy.path.abspath(script.inputs["Table"].default_value) for _, script in _osl_scripts())
+    return _texture_cache(), False, in_use
+
+
+def _osl_scripts():
+    """(material, script node) of every OSL edit in the .blend: the Script node, with its
+    Table input, inside the material's edit group."""
     for mat in bpy.data.materials:
         node = mat.node_tree.nodes.get(GROUP_NODE) if mat.node_tree is not None else None
         group = node.node_tree if node is not None else None
-        for n in group.nodes if group is not None else ():
-            if n.bl_idname == "ShaderNodeScript" and "Table" in n.inputs:
-                in_use.append(bpy.path.abspath(n.inputs["Table"].default_value))
-    return _texture_cache(), False, tuple(in_use)
+        script = next((n for n in group.nodes if n.bl_idname == "ShaderNodeScript"), None) if group else None
+        if script is not None and "Table" in script.inputs:
+            yield mat, script
 
 
 def write_texture(place, prefix, pixels) -> str:
@@ -562,12 +567,9 @@ def relink_textures():
     from ..core.limits import ARTIST_TEXTURE_MAX_BYTES, ARTIST_TEXTURE_MAX_ENTRIES
 
     cache = os.path.abspath(_texture_cache())
-    for mat in bpy.data.materials:
-        node = mat.node_tree.nodes.get(GROUP_NODE) if mat.node_tree is not None else None
-        group = node.node_tree if node is not None else None
-        script = next((n for n in group.nodes if n.bl_idname == "ShaderNodeScript"), None) if group else None
+    for mat, script in list(_osl_scripts()):
         img = bpy.data.images.get(TEXTURE_IMAGE.format(mat.name))
-        if script is None or img is None or "Table" not in script.inputs:
+        if img is None:
             continue
         current = os.path.abspath(bpy.path.abspath(script.inputs["Table"].default_value))
         if os.path.isfile(current) and (os.path.dirname(current) != cache or cachefs.verified(current)):
