@@ -148,14 +148,16 @@ def test_a_slider_moves_work_runs_on_one_worker_the_latest_first(blender):
         if threads:
             break
         threading.Event().wait(0.01)
+    assert worker.busy()  # running "first"
     for tag in ("second", "third", "latest"):
         worker.submit(job(tag))
     release.set()
     for _ in range(300):
-        if ran[-1:] == ["latest"]:
+        if ran[-1:] == ["latest"] and not worker.busy():
             break
         threading.Event().wait(0.01)
     assert ran == ["first", "latest"] and len(threads) == 1  # the moves in between were dropped
+    assert not worker.busy() and threads[0].is_alive()  # idle: its thread waits for the next move
     named = [t for t in lifecycle.threads() if t.name == "test: announce"]
     assert len(named) == 1
     blender.ops.wm.read_homefile(use_empty=True)  # opening a file stops it
@@ -167,3 +169,48 @@ def test_a_slider_moves_work_runs_on_one_worker_the_latest_first(blender):
         threading.Event().wait(0.01)
     assert ran[-1] == "after" and len(threads) == 2  # a fresh thread served it
     lifecycle.file_loading(timeout=5.0)
+
+
+def test_threads_started_while_a_file_opens_in_a_window_wait_for_the_operator_to_return(blender):
+    """In a window, ``file_loading`` holds back every thread started until the file operator
+    has returned (Blender 3.4 crashed when a thread started by the load_post handler ran numpy
+    through the end of a script's open_mainfile). A second open before that forgets the held
+    threads of the file left, stopping them (so a slider worker serves the next move), and
+    keeps the ones that outlive a file; the first timer pass starts them."""
+    import threading
+
+    lifecycle = sys.modules["bl_ext.bmtest.brdf_moments.addon.blender.lifecycle"]
+    ran, stopped = [], []
+
+    def record(tag):
+        return lambda: ran.append(tag)
+
+    report = lifecycle.file_loading(timeout=5.0, hold=True)
+    try:
+        assert report["held"] and blender.app.timers.is_registered(lifecycle._release_held)
+        plot = lifecycle.start_thread(record("plot"), "test: plot", stop=lambda: stopped.append("plot"))
+        warm = lifecycle.start_thread(record("warm"), "test: warm", outlives_file=True)
+        worker = lifecycle.LatestWorker("test: held worker")
+        worker.submit(record("move"))
+        threading.Event().wait(0.2)
+        assert ran == [] and not plot.is_alive() and plot.ident is None  # none of them started
+        assert {t.name for t in lifecycle.held_threads()} == {"test: plot", "test: warm", "test: held worker"}
+        lifecycle.file_loading(timeout=5.0, hold=True)  # another file before the first was in
+        assert stopped == ["plot"] and [t.name for t in lifecycle.held_threads()] == ["test: warm"]
+        lifecycle._release_held()  # Blender's first timer pass after the operator
+        assert lifecycle.held_threads() == []
+        warm.join(5)
+        worker.submit(record("next move"))  # the worker held for the left file was stopped: a fresh one
+        for _ in range(300):
+            if "next move" in ran:
+                break
+            threading.Event().wait(0.01)
+        assert sorted(ran) == ["next move", "warm"] and plot.ident is None
+        late = lifecycle.start_thread(record("late"), "test: late")  # released: threads start at once
+        late.join(5)
+        assert ran[-1] == "late"
+    finally:
+        lifecycle._release_held()
+        if blender.app.timers.is_registered(lifecycle._release_held):
+            blender.app.timers.unregister(lifecycle._release_held)
+        lifecycle.file_loading(timeout=5.0, hold=False)

@@ -273,6 +273,9 @@ def test_build_preview_then_save_and_reopen(lane):
     # The preview image comes back with the file, pixel for pixel (a generated image's pixels are
     # not saved: the measured sphere had come back black).
     assert st["save"]["preview"] is not None and st["reopen"]["preview"] == st["save"]["preview"]
+    # Nothing of the add-on ran while the file operator was under way: the load_post handler's
+    # plot and warm-up waited for it to return (Blender 3.4 crashed on a thread running then).
+    assert st["reopen"]["quiet_before"] == [] and st["reopen"]["running_at_return"] == []
 
 
 def test_the_artists_material_without_osl(lane):

@@ -225,6 +225,27 @@ def wait_jobs():
         yield 0.05
 
 
+def ours_running():
+    """The add-on's threads at work now (a job's listener included; not the slider worker
+    waiting for the next move, which runs no Python)."""
+    state = sys.modules.get("brdf_moments.addon.blender.state")
+    idle = state is not None and not state._ANNOUNCER.busy()
+    return sorted(
+        t.name
+        for t in threading.enumerate()
+        if t.name.startswith("brdf_moments") and t.is_alive() and not (idle and t.name == "brdf_moments: announce")
+    )
+
+
+def until_quiet(limit=30.0):
+    """Until none of the add-on's threads runs. A script's bpy.ops.wm.save_as_mainfile or
+    open_mainfile in Blender 3.4's window crashes when any thread runs numpy meanwhile
+    (lifecycle's docstring): that is Blender's, and a script must wait, as this one does."""
+    t0 = time.monotonic()
+    while ours_running() and time.monotonic() - t0 < limit:
+        yield 0.05
+
+
 def last_job():
     return jobs().HISTORY[-1] if jobs().HISTORY else None
 
@@ -586,11 +607,17 @@ def session():
 
     # Save, then reopen (the driver's timers are persistent).
     blend = os.path.join(OUT, "session.blend")
+    yield from until_quiet()
     with override():
         bpy.ops.wm.save_as_mainfile(filepath=blend)
     record("save", blend=blend, preview=preview_digest())
+    yield from until_quiet()
+    quiet_before = ours_running()
     with override():
         bpy.ops.wm.open_mainfile(filepath=blend)
+    # What the load_post handler started (plots, warm-up) must not be running yet: it waits
+    # for the operator to return (lifecycle.file_loading's hold).
+    running_at_return = ours_running()
     yield 1.0
     reopened_scene = window().scene.name
     window().scene = bpy.data.scenes["Scene"]  # back to the artist's scene, the cube active
@@ -599,7 +626,14 @@ def session():
     area("PROPERTIES").spaces.active.context = "MATERIAL"
     redraw()
     yield 0.5
-    record("reopen", reopened_scene=reopened_scene, preview=preview_digest(), shot=screenshot("reopened"))
+    record(
+        "reopen",
+        reopened_scene=reopened_scene,
+        preview=preview_digest(),
+        shot=screenshot("reopened"),
+        quiet_before=quiet_before,
+        running_at_return=running_at_return,
+    )
     yield from panel_shot("reopened")
 
     # An Apply as an artist makes it in the reopened file: a new slider value, Apply, then wait
