@@ -19,8 +19,8 @@ So every thread and timer the add-on starts goes through here:
   handler's plots and warm-up): they start at the first timer pass, once the file operator
   has returned. Blender 3.4 in a window crashes when a thread runs numpy while a script's
   ``bpy.ops.wm.open_mainfile`` or ``save_as_mainfile`` is under way (measured with
-  ``tests/windowed/thread_during_file_ops.py``: each of 9 runs crashed within 46 opens; 45
-  opens through the File menu and 60 headless did not).
+  ``tests/windowed/thread_during_file_ops.py``: each of 6 runs crashed by its 7th open;
+  through the File menu 45 opens did not, nor 60 headless).
   The symptom, "returned NULL without setting an exception", is that of a thread state
   released by the wrong thread: 3.4's ``BPY_thread_save`` releases the GIL of whichever
   thread holds it, where later versions first check that the caller holds it. A thread
