@@ -38,7 +38,6 @@ def session():
         with bpy.context.temp_override(window=bpy.context.window_manager.windows[0]):
             bpy.ops.wm.open_mainfile(filepath=BLEND)
         at_return, opened = ours(), time.monotonic()
-        lifecycle, images, state = (sys.modules[PKG + m] for m in ("lifecycle", "images", "state"))
         while (images.drawing() or lifecycle.held_threads()) and time.monotonic() - opened < 10:
             yield 0.05
         print(f"reopen {i + 1}: running at return {at_return}, plot in place after {time.monotonic() - opened:.2f} s")
